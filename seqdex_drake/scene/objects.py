@@ -1,0 +1,164 @@
+"""Bookkeeping of a station's loose objects: placing, parking, freezing, waking and restoring piles.
+
+:class:`SceneObjects` edits a station context between control steps (it is not a System: collision
+filters and body masses live in the SceneGraph and plant contexts, which no event of another system may
+write). Every call costs microseconds to a few milliseconds; restoring a cached pile is a state write.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.geometry import CollisionFilterDeclaration, GeometrySet
+from pydrake.math import RigidTransform
+from pydrake.multibody.math import SpatialVelocity
+from pydrake.systems.framework import Context, Diagram
+
+from seqdex_drake.robots.allegro import FINGERTIP_FRAMES, PALM_BODY
+from seqdex_drake.scenario import Scenario
+from seqdex_drake.scene.freezing import FrozenSet, ObjectBody
+
+#: Parking lot for unused objects: a row 1.5 m behind the robot, off the table, frozen in mid-air.
+PARKING_ORIGIN = np.array([-1.5, -1.0, 0.3])
+PARKING_PITCH = 0.15
+
+
+class SceneObjects:
+    """Places, freezes and wakes the loose objects of one station (see ``scene/freezing.py``).
+
+    Args:
+        station: the Diagram from :func:`~seqdex_drake.station.MakeStation`.
+        scenario: the scenario it was built from.
+    """
+
+    def __init__(self, station: Diagram, scenario: Scenario):
+        self.station = station
+        self.scenario = scenario
+        self.plant = station.GetSubsystemByName("plant")
+        self.scene_graph = station.GetSubsystemByName("scene_graph")
+        self.freezer = station.GetSubsystemByName("object_freezer")
+        self.names = list(scenario.objects)
+        self.bodies = [ObjectBody(self.plant, name) for name in self.names]
+        self._index = {name: i for i, name in enumerate(self.names)}
+        self._geometries = [self.plant.GetCollisionGeometriesForBody(b) for b in self.bodies]
+        static = GeometrySet()
+        for body in self.plant.GetBodiesWeldedTo(self.plant.world_body()):
+            static.Add(self.plant.GetCollisionGeometriesForBody(body))
+        self._static = static
+        self._filter_ids: dict[int, object] = {}
+        hand = self.plant.GetModelInstanceByName("allegro")
+        self._hand_frames = [self.plant.GetFrameByName(f, hand) for f in FINGERTIP_FRAMES]
+        self._hand_frames.append(self.plant.GetBodyByName(PALM_BODY, hand).body_frame())
+
+    # ----------------------------------------------------------------------------------------- access
+    def index(self, name: str) -> int:
+        """Position of object ``name`` in ``scenario.objects``; clear error for unknown names."""
+        if name not in self._index:
+            raise KeyError(f"unknown object '{name}'; this station's objects: {', '.join(self.names)}")
+        return self._index[name]
+
+    def _contexts(self, root: Context):
+        return (self.plant.GetMyMutableContextFromRoot(root),
+                self.scene_graph.GetMyMutableContextFromRoot(root),
+                self.freezer.GetMyMutableContextFromRoot(root))
+
+    def positions(self, root: Context) -> np.ndarray:
+        """(n, 7) free-body positions [quaternion wxyz, xyz] of all objects."""
+        plant_context = self.plant.GetMyContextFromRoot(root)
+        q = self.plant.GetPositions(plant_context)
+        return np.array([q[b.floating_positions_start():b.floating_positions_start() + 7]
+                         for b in self.bodies]).reshape(-1, 7)
+
+    def frozen_mask(self, root: Context) -> np.ndarray:
+        """Boolean mask of frozen objects."""
+        return self.freezer.frozen_set(self.freezer.GetMyContextFromRoot(root)).frozen.copy()
+
+    def frozen_names(self, root: Context) -> list[str]:
+        return [n for n, f in zip(self.names, self.frozen_mask(root), strict=True) if f]
+
+    # ---------------------------------------------------------------------------------------- placing
+    def set_positions(self, root: Context, q_objects: np.ndarray, frozen: np.ndarray | None = None) -> None:
+        """Sets all objects' free-body positions (zero velocity), then the frozen set (default: unchanged)."""
+        q_objects = np.asarray(q_objects, dtype=float).reshape(len(self.names), 7)
+        plant_context, _, _ = self._contexts(root)
+        q = self.plant.GetPositions(plant_context)
+        v = self.plant.GetVelocities(plant_context)
+        for body, q_body in zip(self.bodies, q_objects, strict=True):
+            start = body.floating_positions_start()
+            q[start:start + 7] = q_body
+            v[body.floating_velocities_start_in_v():body.floating_velocities_start_in_v() + 6] = 0.0
+        self.plant.SetPositions(plant_context, q)
+        self.plant.SetVelocities(plant_context, v)
+        self.set_frozen(root, self.frozen_mask(root) if frozen is None else frozen)
+
+    def set_pose(self, root: Context, name: str, X_WB: RigidTransform, frozen: bool = False) -> None:
+        """Places one object at ``X_WB`` at rest and freezes or wakes it."""
+        plant_context, _, _ = self._contexts(root)
+        body = self.bodies[self.index(name)]
+        self.plant.SetFreeBodyPose(plant_context, body, X_WB)
+        self.plant.SetFreeBodySpatialVelocity(body, SpatialVelocity.Zero(), plant_context)
+        mask = self.frozen_mask(root)
+        mask[self.index(name)] = frozen
+        self.set_frozen(root, mask)
+
+    def parking_pose(self, name: str) -> RigidTransform:
+        """The parking pose of object ``name``: a slot in a row off the table."""
+        return RigidTransform(PARKING_ORIGIN + [0.0, PARKING_PITCH * self.index(name), 0.0])
+
+    def park(self, root: Context, names: list[str] | None = None) -> None:
+        """Moves objects (default: all) to their parking slots, frozen."""
+        for name in self.names if names is None else names:
+            self.set_pose(root, name, self.parking_pose(name), frozen=True)
+
+    # --------------------------------------------------------------------------------------- freezing
+    def set_frozen(self, root: Context, frozen: np.ndarray) -> None:
+        """Freezes exactly the objects in mask ``frozen`` at their current poses; wakes the others."""
+        frozen = np.asarray(frozen, dtype=bool).reshape(len(self.names))
+        plant_context, scene_graph_context, freezer_context = self._contexts(root)
+        for body, is_frozen in zip(self.bodies, frozen, strict=True):
+            mass = body.default_mass() * (self.scenario.freeze.mass_scale if is_frozen else 1.0)
+            if body.get_mass(plant_context) != mass:
+                body.SetMass(plant_context, mass)
+        manager = self.scene_graph.collision_filter_manager(scene_graph_context)
+        for filter_id in self._filter_ids.values():
+            manager.RemoveDeclaration(filter_id)
+        self._filter_ids.clear()
+        if frozen.any():
+            geometries = GeometrySet()
+            geometries.Add(self._static)
+            for i in np.flatnonzero(frozen):
+                geometries.Add(self._geometries[i])
+            self._filter_ids[0] = manager.ApplyTransient(CollisionFilterDeclaration().ExcludeWithin(geometries))
+        self.freezer.set_frozen_set(freezer_context, FrozenSet(frozen.copy(), self.positions(root)))
+
+    def freeze_far_from(self, root: Context, p_WF: np.ndarray, radius: float | None = None) -> None:
+        """Freezes every object whose origin is farther than ``radius`` (default: scenario's) from ``p_WF``."""
+        radius = self.scenario.freeze.active_radius if radius is None else radius
+        distance = np.linalg.norm(self.positions(root)[:, 4:] - np.asarray(p_WF), axis=1)
+        self.set_frozen(root, distance > radius)
+
+    def hand_points(self, root: Context) -> np.ndarray:
+        """(5, 3) world positions of the four fingertips and the palm."""
+        plant_context = self.plant.GetMyContextFromRoot(root)
+        return np.array([f.CalcPoseInWorld(plant_context).translation() for f in self._hand_frames])
+
+    def update(self, root: Context) -> list[str]:
+        """Wakes frozen objects the hand or a moving object comes near; call once per control step.
+
+        Returns the names of the objects woken.
+        """
+        frozen = self.frozen_mask(root)
+        if not frozen.any():
+            return []
+        p_WO = self.positions(root)[:, 4:]
+        plant_context = self.plant.GetMyContextFromRoot(root)
+        v = self.plant.GetVelocities(plant_context)
+        speed = np.array([np.linalg.norm(v[b.floating_velocities_start_in_v() + 3:
+                                           b.floating_velocities_start_in_v() + 6]) for b in self.bodies])
+        movers = p_WO[(~frozen) & (speed > self.scenario.freeze.wake_speed)]
+        sources = np.vstack([self.hand_points(root), movers])
+        near = np.min(np.linalg.norm(p_WO[:, None, :] - sources[None, :, :], axis=2), axis=1)
+        wake = frozen & (near < self.scenario.freeze.wake_radius)
+        if not wake.any():
+            return []
+        self.set_frozen(root, frozen & ~wake)
+        return [n for n, w in zip(self.names, wake, strict=True) if w]
