@@ -14,8 +14,10 @@ Outputs
     ``body_poses``, ``body_spatial_velocities``, ``contact_results``, ``query_object``, ``plant_state``.
     ``<camera>.rgb_image`` / ``.depth_image_32f`` / ``.label_image`` for each configured camera.
 
-The Franka receives gravity compensation computed on a controller plant (the Franka with the Allegro
-welded and frozen) built from the same directives, see :func:`MakeControllerPlant`.
+The Franka receives gravity compensation (its joints' gravity torques with the hand attached).
+:func:`MakeControllerPlant` builds, from the same directives, the plant an operational-space controller
+needs: the Franka with the Allegro welded on and frozen. Keep a Python reference to it as long as any
+System uses it (pydrake does not keep it alive for C++ systems such as ``InverseDynamics``).
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant
 from pydrake.multibody.tree import ModelInstanceIndex, PdControllerGains, RevoluteJoint, WeldJoint
 from pydrake.systems.controllers import InverseDynamics
 from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import MatrixGain
 from pydrake.systems.sensors import CameraConfig, RgbdSensor
 from pydrake.visualization import ApplyVisualizationConfig
 
@@ -113,8 +116,10 @@ def _check_robot(plant: MultibodyPlant) -> None:
 def _freeze_hand(plant: MultibodyPlant, hand_q: np.ndarray) -> None:
     """Replaces every Allegro joint (and actuator) by a weld at ``hand_q`` (pre-Finalize)."""
     hand = plant.GetModelInstanceByName(ALLEGRO)
-    for index in plant.GetJointActuatorIndices(hand):
-        plant.RemoveJointActuator(plant.get_joint_actuator(index))
+    # GetJointActuatorIndices(instance) is empty before Finalize(): filter the full list instead.
+    for index in plant.GetJointActuatorIndices():
+        if plant.get_joint_actuator(index).model_instance() == hand:
+            plant.RemoveJointActuator(plant.get_joint_actuator(index))
     for name, angle in zip(ALLEGRO_JOINT_NAMES, hand_q, strict=True):
         joint = plant.GetJointByName(name, hand)
         assert isinstance(joint, RevoluteJoint)
@@ -141,8 +146,11 @@ def _configure_actuators(plant: MultibodyPlant, scenario: Scenario) -> None:
     gains = {FRANKA: PdControllerGains(p=scenario.robot.arm_kp, d=scenario.robot.arm_kd),
              ALLEGRO: PdControllerGains(p=scenario.robot.hand_kp, d=scenario.robot.hand_kd)}
     for name, pd in gains.items():
-        for index in plant.GetJointActuatorIndices(plant.GetModelInstanceByName(name)):
+        instance = plant.GetModelInstanceByName(name)
+        for index in plant.GetJointActuatorIndices():  # The per-instance overload is empty pre-Finalize.
             actuator = plant.get_joint_actuator(index)
+            if actuator.model_instance() != instance:
+                continue
             actuator.set_controller_gains(pd)
             if name == ALLEGRO and scenario.robot.hand_rotor_inertia > 0:
                 actuator.set_default_rotor_inertia(scenario.robot.hand_rotor_inertia)
@@ -171,6 +179,25 @@ def AddStationPlant(builder: DiagramBuilder, scenario: Scenario) -> tuple[Multib
     plant.Finalize()
     _set_default_robot_positions(plant, scenario)
     return plant, scene_graph
+
+
+def AddArmGravityCompensation(builder: DiagramBuilder, plant: MultibodyPlant) -> None:
+    """Feeds the Franka joints' gravity torques forward into the Franka actuators.
+
+    Computed on the station plant itself (C++ ``InverseDynamics`` in gravity-compensation mode), so the
+    torques include the hand at its current configuration; the arm's 7 entries are selected by a gain.
+    """
+    gravity = builder.AddSystem(InverseDynamics(plant, InverseDynamics.InverseDynamicsMode.kGravityCompensation))
+    gravity.set_name("franka.gravity_compensation")
+    franka = plant.GetModelInstanceByName(FRANKA)
+    selector = np.zeros((7, plant.num_velocities()))
+    for row, name in enumerate(FRANKA_JOINT_NAMES):
+        selector[row, plant.GetJointByName(name, franka).velocity_start()] = 1.0
+    select = builder.AddSystem(MatrixGain(selector))
+    select.set_name("franka.gravity_selector")
+    builder.Connect(plant.get_state_output_port(), gravity.get_input_port_estimated_state())
+    builder.Connect(gravity.get_output_port_generalized_force(), select.get_input_port())
+    builder.Connect(select.get_output_port(), plant.get_actuation_input_port(franka))
 
 
 def AddCamera(builder: DiagramBuilder, plant: MultibodyPlant, scene_graph: SceneGraph, name: str,
@@ -214,13 +241,7 @@ def MakeStation(scenario: Scenario, meshcat=None) -> Diagram:
         builder.ExportOutput(plant.get_state_output_port(plant.GetModelInstanceByName(name)), f"{name}.state")
 
     if scenario.robot.arm_gravity_compensation:
-        controller_plant = MakeControllerPlant(scenario)
-        gravity = builder.AddSystem(InverseDynamics(
-            controller_plant, InverseDynamics.InverseDynamicsMode.kGravityCompensation))
-        gravity.set_name("franka.gravity_compensation")
-        franka = plant.GetModelInstanceByName(FRANKA)
-        builder.Connect(plant.get_state_output_port(franka), gravity.get_input_port_estimated_state())
-        builder.Connect(gravity.get_output_port_generalized_force(), plant.get_actuation_input_port(franka))
+        AddArmGravityCompensation(builder, plant)
 
     from seqdex_drake.scene.freezing import AddObjectFreezer  # Local: scene depends on this module.
 

@@ -7,8 +7,8 @@ the footprint.
 
 A block is hollow underneath: 3 mm outer walls, a 10 mm top plate and a 27.5 mm deep cavity (plate studs are
 20 mm tall). Inside the cavity, locating features sized for the nominal 18 mm stud centre the block on a stud
-grid: on 1xN blocks one rib per stud on each long wall and one rib on each end wall; on the 2x2 block a central
-post touching all four studs below it. The studs themselves are slimmed to 16.5 mm (as the paper did), which
+grid: a rib on the wall facing every stud position along each wall, and on the 2x2 block also a central post
+touching all four studs below it. The studs themselves are slimmed to 16.5 mm (as the paper did), which
 leaves 0.75 mm of play per side, so an aligned block dropped onto a plate seats by free fall. Ribs and posts
 have a 1.5 mm lead-in chamfer at the bottom. Curved blocks replace the top over their stud-less cells by a
 superellipse quadrant that falls to a lower lip at the +x end; the cavity ceiling follows 3 mm below it where
@@ -43,6 +43,7 @@ CAVITY_DEPTH = 0.0275
 LOCATOR_WIDTH = 0.004  # Rib width along its wall.
 LEAD_IN = 0.0015  # Horizontal size of the bottom chamfer of ribs and posts.
 LEAD_IN_HEIGHT = 0.003
+EMBED = 0.0005  # Ribs and posts reach this far into the wall or top plate they hang from (robust union).
 DENSITY = 567.0  # kg/m^3, as in the authors' release.
 RESOLUTIONS = ("coarse", "fine")
 BLOCK_PROXIMITY = sdf_writer.ProximityProperties(mu_dynamic=0.7, mu_static=0.8, hydroelastic_modulus=1.0e7)
@@ -143,7 +144,7 @@ BLOCK_SPECS: dict[int, BlockSpec] = {
         BlockSpec(4, "1x3", (3, 1), ((0, 0), (1, 0), (2, 0)), "trained", (0.55, 0.20, 0.70, 1.0)),
         BlockSpec(5, "1x4", (4, 1), ((0, 0), (1, 0), (2, 0), (3, 0)), "trained", (0.10, 0.70, 0.80, 1.0)),
         BlockSpec(6, "1x3 curved", (3, 1), ((0, 0),), "unseen", (0.95, 0.45, 0.65, 1.0),
-                  SlopeSpec(start=0.03, lip_height=0.015, exponent=2.0)),
+                  SlopeSpec(start=0.03, lip_height=0.019, exponent=2.0)),
         BlockSpec(7, "1x1", (1, 1), ((0, 0),), "unseen", (0.92, 0.92, 0.92, 1.0)),
         BlockSpec(8, "2x2 soft curve", (2, 2), ((0, 0), (0, 1)), "unseen", (0.55, 0.85, 0.15, 1.0),
                   SlopeSpec(start=0.03, lip_height=0.0225, exponent=2.5)),
@@ -152,6 +153,7 @@ BLOCK_SPECS: dict[int, BlockSpec] = {
 
 
 def _check_block_type(block_type: int) -> BlockSpec:
+    """The spec of a block type; ValueError listing the valid types otherwise."""
     if block_type not in BLOCK_SPECS:
         raise ValueError(f"unknown block type {block_type!r}; valid types are {sorted(BLOCK_SPECS)}")
     return BLOCK_SPECS[block_type]
@@ -239,6 +241,7 @@ def _shell_parts(spec: BlockSpec, resolution: Resolution) -> list[np.ndarray]:
 
 
 def _stud_parts(spec: BlockSpec, resolution: Resolution) -> list[np.ndarray]:
+    """Point sets of the chamfered studs on top of the body."""
     return [
         decomposition.chamfered_cylinder_points(
             STUD_RADIUS, BODY_HEIGHT, TOTAL_HEIGHT, STUD_CHAMFER, resolution.stud_segments, center
@@ -249,42 +252,45 @@ def _stud_parts(spec: BlockSpec, resolution: Resolution) -> list[np.ndarray]:
 
 def _rib_points(along: tuple[float, float], wall: float, face: float, z_top: float, axis: int) -> np.ndarray:
     """A rib on a wall: spans `along` on the wall, reaches from `wall` to `face` across it, with a lead-in."""
-    lead_face = face + np.sign(wall - face) * LEAD_IN
+    direction = np.sign(wall - face)
+    lead_face, wall = face + direction * LEAD_IN, wall + direction * EMBED
     profile = [(wall, 0.0), (wall, z_top), (lead_face, 0.0), (face, LEAD_IN_HEIGHT), (face, z_top)]
     points = [(a, c, z) for a in along for c, z in profile]
     return np.array([(a, c, z) if axis == 0 else (c, a, z) for a, c, z in points])
 
 
 def _locating_parts(spec: BlockSpec, resolution: Resolution) -> list[np.ndarray]:
-    """Ribs (1xN blocks) or posts (2-wide blocks) that centre the block on the studs below it."""
+    """Wall ribs facing every stud position next to a wall, and posts at interior grid vertices (2x2)."""
     half_x, half_y = spec.footprint[0] / 2, spec.footprint[1] / 2
     xs, zs = top_profile(spec, resolution.curve_segments)
+    nx, ny = spec.cells
     parts = []
-    if spec.cells[1] == 1:
-        for i in range(spec.cells[0]):
-            x = spec.cell_center(i, 0)[0]
-            along = (x - LOCATOR_WIDTH / 2, x + LOCATOR_WIDTH / 2)
-            z_top = float(np.min(_ceiling(np.array(along), xs, zs)))
-            for side in (-1.0, 1.0):
-                wall, face = side * (half_y - WALL_THICKNESS), side * STUD_RADIUS_NOMINAL
-                parts.append(_rib_points(along, wall, face, z_top, axis=0))
-        end_stud = half_x - STUD_PITCH / 2
+    for i in range(nx):  # Ribs on the two long walls (y = +-W/2), one facing each stud column.
+        x = spec.cell_center(i, 0)[0]
+        along = (x - LOCATOR_WIDTH / 2, x + LOCATOR_WIDTH / 2)
+        z_top = float(np.min(_ceiling(np.array(along), xs, zs)))
+        edge_stud = half_y - STUD_PITCH / 2
         for side in (-1.0, 1.0):
-            wall, face = side * (half_x - WALL_THICKNESS), side * (end_stud + STUD_RADIUS_NOMINAL)
+            wall, face = side * (half_y - WALL_THICKNESS), side * (edge_stud + STUD_RADIUS_NOMINAL)
+            parts.append(_rib_points(along, wall, face, z_top, axis=0))
+    edge_stud = half_x - STUD_PITCH / 2
+    for j in range(ny):  # Ribs on the two end walls (x = +-L/2), one facing each stud row.
+        y = spec.cell_center(0, j)[1]
+        for side in (-1.0, 1.0):
+            wall, face = side * (half_x - WALL_THICKNESS), side * (edge_stud + STUD_RADIUS_NOMINAL)
             z_top = float(np.min(_ceiling(np.array([wall, face]), xs, zs)))
-            parts.append(_rib_points((-LOCATOR_WIDTH / 2, LOCATOR_WIDTH / 2), wall, face, z_top, axis=1))
-    else:
-        radius = STUD_PITCH / np.sqrt(2.0) - STUD_RADIUS_NOMINAL
-        for i in range(1, spec.cells[0]):
-            for j in range(1, spec.cells[1]):
-                center = (-half_x + i * STUD_PITCH, -half_y + j * STUD_PITCH)
-                z_top = float(np.min(_ceiling(np.array([center[0] - radius, center[0] + radius]), xs, zs)))
-                segments = resolution.post_segments
-                parts.append(np.vstack([
-                    decomposition.circle_points(radius - LEAD_IN, 0.0, segments, center),
-                    decomposition.circle_points(radius, LEAD_IN_HEIGHT, segments, center),
-                    decomposition.circle_points(radius, z_top, segments, center),
-                ]))
+            parts.append(_rib_points((y - LOCATOR_WIDTH / 2, y + LOCATOR_WIDTH / 2), wall, face, z_top, axis=1))
+    radius = STUD_PITCH / np.sqrt(2.0) - STUD_RADIUS_NOMINAL  # A post touching its four nominal studs.
+    for i in range(1, nx):
+        for j in range(1, ny):
+            center = (-half_x + i * STUD_PITCH, -half_y + j * STUD_PITCH)
+            z_top = float(np.min(_ceiling(np.array([center[0] - radius, center[0] + radius]), xs, zs)))
+            segments = resolution.post_segments
+            parts.append(np.vstack([
+                decomposition.circle_points(radius - LEAD_IN, 0.0, segments, center),
+                decomposition.circle_points(radius, LEAD_IN_HEIGHT, segments, center),
+                decomposition.circle_points(radius, z_top + EMBED, segments, center),
+            ]))
     return parts
 
 
@@ -297,16 +303,17 @@ def block_parts(block_type: int, resolution: Resolution) -> list[np.ndarray]:
     return parts
 
 
-def socket_clearance_volume(block_type: int, pieces) -> float:
+def socket_clearance_volume(block_type: int, pieces, margin: float = 0.0005) -> float:
     """Volume (m^3) by which convex pieces overlap slimmed studs standing in every cell under the block.
 
-    Zero means the cavity is open: the block can sit on an aligned stud grid with its rim on the plate.
+    The studs are made `margin` taller than they are. Zero means the cavity is open: the block can sit on an
+    aligned stud grid with its rim on the plate and at least `margin` of head room above every stud.
     """
     spec = _check_block_type(block_type)
     overlap = 0.0
     for center in spec.socket_centers:
         stud = decomposition.hull_manifold(decomposition.chamfered_cylinder_points(
-            STUD_RADIUS, 0.0, STUD_HEIGHT, STUD_CHAMFER, 32, center))
+            STUD_RADIUS, 0.0, STUD_HEIGHT + margin, STUD_CHAMFER, 32, center))
         for piece in pieces:
             overlap += (stud ^ decomposition.hull_manifold(np.asarray(piece.vertices))).volume()
     return overlap
@@ -366,7 +373,7 @@ def pile_directives_text(resolution: str, copies: int = 9) -> str:
     for block_type in sorted(BLOCK_SPECS):
         url = block_sdf_url(block_type, resolution)
         for copy in range(copies):
-            lines += [f"- add_model:", f"    name: block_{block_type}_{copy}", f"    file: {url}"]
+            lines.append(f"- add_model: {{name: block_{block_type}_{copy}, file: {url}}}")
     return "\n".join(lines) + "\n"
 
 

@@ -91,7 +91,7 @@ LINK_CAPSULES = (
     (3, "upper_arm", (0.0, 0.0, 0.46), (0.0, 0.0, 0.60), 0.06, FRANKA_WHITE),
     (3, "elbow", (0.0825, -0.05, 0.649), (0.0825, 0.05, 0.649), 0.055, FRANKA_GREY),
     (4, "knee", (0.07, 0.0, 0.67), (0.01, 0.0, 0.78), 0.055, FRANKA_WHITE),
-    (5, "forearm", (0.0, 0.0, 0.80), (0.0, 0.0, 0.96), 0.05, FRANKA_WHITE),
+    (5, "forearm", (0.0, 0.0, 0.80), (0.0, 0.0, 0.92), 0.05, FRANKA_WHITE),
     (6, "wrist", (0.0, -0.045, 1.033), (0.0, 0.045, 1.033), 0.05, FRANKA_GREY),
     (6, "wrist_arm", (0.0, 0.0, 1.033), (0.088, 0.0, 1.033), 0.045, FRANKA_WHITE),
     (7, "hand_link", (0.088, 0.0, 1.02), (0.088, 0.0, 0.975), 0.045, FRANKA_WHITE),
@@ -154,9 +154,7 @@ def build_panda_urdf() -> str:
     base_start, base_end, base_radius = BASE_CYLINDER
     base_pose, base_length = pose_along_segment(base_start, base_end)
     builder.comment("Base: not identified; a plausible mass as a solid cylinder matching its shape.")
-    builder.add_link(
-        BASE_FRAME, BASE_MASS, base_pose.xyz, cylinder_inertia(BASE_MASS, base_radius, base_length)
-    )
+    builder.add_link(BASE_FRAME, BASE_MASS, base_pose.xyz, cylinder_inertia(BASE_MASS, base_radius, base_length))
     builder.add_shape(BASE_FRAME, "base", Cylinder(base_radius, base_length), base_pose, FRANKA_WHITE)
 
     for index in range(7):

@@ -54,6 +54,14 @@ def inertial_from_mesh(mesh: trimesh.Trimesh, density: float) -> Inertial:
     )
 
 
+def box_inertial(size: Sequence[float], density: float, center: Sequence[float] = (0.0, 0.0, 0.0)) -> Inertial:
+    """Mass properties of a solid axis-aligned box of uniform density centred at `center`."""
+    a, b, c = (float(s) for s in size)
+    mass = density * a * b * c
+    inertia = mass / 12.0 * np.diag([b * b + c * c, a * a + c * c, a * a + b * b])
+    return Inertial(mass=mass, center_of_mass=np.asarray(center, dtype=float), inertia=inertia)
+
+
 def combine_inertials(parts: Sequence[Inertial]) -> Inertial:
     """Mass properties of a body made of several disjoint parts (parallel-axis theorem)."""
     mass = sum(part.mass for part in parts)
@@ -150,10 +158,12 @@ def _num(value: float) -> str:
 
 
 def _nums(values: Sequence[float]) -> str:
+    """Space-separated `_num` texts."""
     return " ".join(_num(v) for v in values)
 
 
 def _geometry_lines(geometry: Geometry) -> list[str]:
+    """The <geometry> element of a visual or collision."""
     if geometry.kind == "box":
         body = [f"<box><size>{_nums(geometry.size)}</size></box>"]
     elif geometry.kind == "cylinder":
@@ -172,6 +182,7 @@ def _geometry_lines(geometry: Geometry) -> list[str]:
 
 
 def _proximity_lines(properties: ProximityProperties) -> list[str]:
+    """The <drake:proximity_properties> element of a collision."""
     lines = [
         f"<drake:mu_dynamic>{_num(properties.mu_dynamic)}</drake:mu_dynamic>",
         f"<drake:mu_static>{_num(properties.mu_static)}</drake:mu_static>",
@@ -189,16 +200,20 @@ def _proximity_lines(properties: ProximityProperties) -> list[str]:
 
 
 def _indent(lines: list[str], depth: int) -> list[str]:
+    """Indents lines by two spaces per depth level."""
     return ["  " * depth + line for line in lines]
 
 
 def _link_lines(link: Link) -> list[str]:
+    """The <link> element: inertial, visuals, collisions."""
     inertial = link.inertial
-    i = inertial.inertia
+    # Entries below 1e-12 kg m^2 (1e-9 m for the centre of mass) are round-off of symmetric shapes: write 0.
+    i = np.where(np.abs(inertial.inertia) < 1e-12, 0.0, inertial.inertia)
+    center = np.where(np.abs(inertial.center_of_mass) < 1e-9, 0.0, inertial.center_of_mass)
     lines = [
         f'<link name="{link.name}">',
         "  <inertial>",
-        f"    <pose>{_nums(inertial.center_of_mass)} 0 0 0</pose>",
+        f"    <pose>{_nums(center)} 0 0 0</pose>",
         f"    <mass>{_num(inertial.mass)}</mass>",
         "    <inertia>",
         f"      <ixx>{_num(i[0, 0])}</ixx>",

@@ -71,15 +71,20 @@ class Pose:
 def pose_along_segment(p_A, p_B) -> tuple[Pose, float]:
     """Returns the pose of a frame centred between points A and B with z along B - A, and |B - A|.
 
-    Used to place capsules and cylinders by their end points. The x axis is chosen by Drake's
-    `RotationMatrix.MakeFromOneVector`, which is deterministic.
+    Used to place capsules and cylinders (shapes symmetric about their centre) by their end points. Along
+    +-z the frame keeps the parent's axes; otherwise Drake's deterministic `RotationMatrix.MakeFromOneVector`
+    picks the x axis.
     """
     p_A = np.asarray(p_A, dtype=float)
     p_B = np.asarray(p_B, dtype=float)
     direction = p_B - p_A
     length = float(np.linalg.norm(direction))
-    R = RotationMatrix.MakeFromOneVector(direction / length, 2)
-    rpy = RollPitchYaw(R).vector()
+    unit = direction / length
+    if abs(abs(unit[2]) - 1.0) < 1e-12:
+        # Along +z or -z: the shapes we place this way are symmetric under a flip, so keep the link's axes.
+        rpy = np.zeros(3)
+    else:
+        rpy = RollPitchYaw(RotationMatrix.MakeFromOneVector(unit, 2)).vector()
     return Pose(tuple((p_A + p_B) / 2.0), tuple(rpy)), length
 
 
@@ -103,6 +108,14 @@ def cylinder_inertia(mass: float, radius: float, length: float) -> np.ndarray:
 def sphere_inertia(mass: float, radius: float) -> np.ndarray:
     """Rotational inertia about the centre of a uniform solid sphere [kg m^2]."""
     return np.eye(3) * 0.4 * mass * radius * radius
+
+
+def rod_inertia(mass: float, radius: float, p_A, p_B) -> tuple[np.ndarray, np.ndarray]:
+    """Centre of mass and rotational inertia (about it, in the link frame) of a uniform solid cylinder
+    running from point A to point B (both in the link frame)."""
+    pose, length = pose_along_segment(p_A, p_B)
+    R = RotationMatrix(RollPitchYaw(np.asarray(pose.rpy))).matrix()
+    return np.asarray(pose.xyz), R @ cylinder_inertia(mass, radius, length) @ R.T
 
 
 def inertia_from_six(ixx, ixy, ixz, iyy, iyz, izz) -> np.ndarray:

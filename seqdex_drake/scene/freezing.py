@@ -65,13 +65,12 @@ class ObjectFreezer(LeafSystem):
         self._nq, self._nv = plant.num_positions(), plant.num_velocities()
         self._q_start = np.array([b.floating_positions_start() for b in object_bodies], dtype=int)
         self._v_start = np.array([b.floating_velocities_start_in_v() for b in object_bodies], dtype=int)
-        context = plant.CreateDefaultContext()
         gravity = plant.gravity_field().gravity_vector()
         self._mass = np.array([b.default_mass() for b in object_bodies]) * mass_scale
         self._p_BoBcm_B = np.array([b.default_com() for b in object_bodies]).reshape(n, 3)
-        self._rot_inertia = np.array([
-            mass_scale * max(b.CalcSpatialInertiaInBodyFrame(context).CalcRotationalInertia()
-                             .CalcPrincipalMomentsOfInertia()) for b in object_bodies])
+        # Rotational inertia about the centre of mass, in the body frame, scaled like the mass.
+        self._I_Bcm_B = np.array([mass_scale * b.default_spatial_inertia().Shift(b.default_com())
+                                  .CalcRotationalInertia().CopyToFullMatrix3() for b in object_bodies]).reshape(n, 3, 3)
         self._anti_gravity = -np.outer(self._mass, gravity)
         self._state_index = self.DeclareAbstractState(
             AbstractValue.Make(FrozenSet(np.zeros(n, dtype=bool), np.zeros((n, 7)))))
@@ -96,20 +95,29 @@ class ObjectFreezer(LeafSystem):
             v = x[self._nq + self._v_start[index, None] + np.arange(6)]
             pin = frozen.q_pin[index]
             R_WB = _quat_to_matrices(q[:, :4] / np.linalg.norm(q[:, :4], axis=1, keepdims=True))
-            m, inertia = self._mass[index, None], self._rot_inertia[index, None]
+            R_WB0 = _quat_to_matrices(pin[:, :4])
+            p_BoBcm_B = self._p_BoBcm_B[index]
+            p_BoBcm_W = np.einsum("nij,nj->ni", R_WB, p_BoBcm_B)
+            # The pin acts at the centre of mass, where translation and rotation decouple.
+            p_WBcm = q[:, 4:] + p_BoBcm_W
+            p_WBcm0 = pin[:, 4:] + np.einsum("nij,nj->ni", R_WB0, p_BoBcm_B)
+            w_WB = v[:, :3]
+            v_WBcm = v[:, 3:] + np.cross(w_WB, p_BoBcm_W)
             # Rotation error as a small-angle vector in W: 2 * vec(q_pin * conj(q)), sign-fixed.
             w0, u0 = pin[:, :1], pin[:, 1:4]
             w1, u1 = q[:, :1], -q[:, 1:4]
             err_w = w0 * w1 - np.sum(u0 * u1, axis=1, keepdims=True)
             err_u = w0 * u1 + w1 * u0 + np.cross(u0, u1)
             theta = 2.0 * np.sign(err_w + 1e-12) * err_u
-            f_Bo_W = m * (PIN_OMEGA**2 * (pin[:, 4:] - q[:, 4:]) - 2 * PIN_OMEGA * v[:, 3:])
-            f_Bo_W += self._anti_gravity[index]
-            p_BoBcm_W = np.einsum("nij,nj->ni", R_WB, self._p_BoBcm_B[index])
-            tau_Bo_W = inertia * (PIN_OMEGA**2 * theta - 2 * PIN_OMEGA * v[:, :3])
-            tau_Bo_W += np.cross(p_BoBcm_W, self._anti_gravity[index])
+            I_Bcm_W = np.einsum("nij,njk,nlk->nil", R_WB, self._I_Bcm_B[index], R_WB)
+            omega = PIN_OMEGA
+            f_Bcm_W = self._mass[index, None] * (omega**2 * (p_WBcm0 - p_WBcm) - 2 * omega * v_WBcm)
+            f_Bcm_W += self._anti_gravity[index]
+            tau_Bcm_W = np.einsum("nij,nj->ni", I_Bcm_W, omega**2 * theta - 2 * omega * w_WB)
+            # Shift the spatial force from Bcm to Bo, where the floating joint's generalized forces act.
+            tau_Bo_W = tau_Bcm_W + np.cross(p_BoBcm_W, f_Bcm_W)
             force[self._v_start[index, None] + np.arange(3)] = tau_Bo_W
-            force[self._v_start[index, None] + 3 + np.arange(3)] = f_Bo_W
+            force[self._v_start[index, None] + 3 + np.arange(3)] = f_Bcm_W
         output.SetFromVector(force)
 
 
@@ -127,7 +135,7 @@ def ObjectBody(plant: MultibodyPlant, instance_name: str):
     """The single free body of a loose object model instance."""
     instance = plant.GetModelInstanceByName(instance_name)
     bodies = [plant.get_body(i) for i in plant.GetBodyIndices(instance)]
-    free = [b for b in bodies if b.is_floating()]
+    free = [b for b in bodies if b.is_floating_base_body()]
     if len(free) != 1:
         raise ValueError(f"object '{instance_name}' must have exactly one free body, found {len(free)}")
     return free[0]

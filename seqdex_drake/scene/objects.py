@@ -13,7 +13,7 @@ from pydrake.math import RigidTransform
 from pydrake.multibody.math import SpatialVelocity
 from pydrake.systems.framework import Context, Diagram
 
-from seqdex_drake.robots.allegro import FINGERTIP_FRAMES, PALM_BODY
+from seqdex_drake.robots.allegro import FINGERTIP_FRAMES, PALM_BODY, p_PalmPc_Palm
 from seqdex_drake.scenario import Scenario
 from seqdex_drake.scene.freezing import FrozenSet, ObjectBody
 
@@ -40,14 +40,12 @@ class SceneObjects:
         self.bodies = [ObjectBody(self.plant, name) for name in self.names]
         self._index = {name: i for i, name in enumerate(self.names)}
         self._geometries = [self.plant.GetCollisionGeometriesForBody(b) for b in self.bodies]
-        static = GeometrySet()
-        for body in self.plant.GetBodiesWeldedTo(self.plant.world_body()):
-            static.Add(self.plant.GetCollisionGeometriesForBody(body))
-        self._static = static
+        self._static = [g for body in self.plant.GetBodiesWeldedTo(self.plant.world_body())
+                        for g in self.plant.GetCollisionGeometriesForBody(body)]
         self._filter_ids: dict[int, object] = {}
         hand = self.plant.GetModelInstanceByName("allegro")
-        self._hand_frames = [self.plant.GetFrameByName(f, hand) for f in FINGERTIP_FRAMES]
-        self._hand_frames.append(self.plant.GetBodyByName(PALM_BODY, hand).body_frame())
+        self._tip_frames = [self.plant.GetFrameByName(f, hand) for f in FINGERTIP_FRAMES]
+        self._palm_frame = self.plant.GetBodyByName(PALM_BODY, hand).body_frame()
 
     # ----------------------------------------------------------------------------------------- access
     def index(self, name: str) -> int:
@@ -95,7 +93,7 @@ class SceneObjects:
         plant_context, _, _ = self._contexts(root)
         body = self.bodies[self.index(name)]
         self.plant.SetFreeBodyPose(plant_context, body, X_WB)
-        self.plant.SetFreeBodySpatialVelocity(body, SpatialVelocity.Zero(), plant_context)
+        self.plant.SetFreeBodySpatialVelocity(plant_context, body, SpatialVelocity.Zero())
         mask = self.frozen_mask(root)
         mask[self.index(name)] = frozen
         self.set_frozen(root, mask)
@@ -123,11 +121,9 @@ class SceneObjects:
             manager.RemoveDeclaration(filter_id)
         self._filter_ids.clear()
         if frozen.any():
-            geometries = GeometrySet()
-            geometries.Add(self._static)
-            for i in np.flatnonzero(frozen):
-                geometries.Add(self._geometries[i])
-            self._filter_ids[0] = manager.ApplyTransient(CollisionFilterDeclaration().ExcludeWithin(geometries))
+            geometries = self._static + [g for i in np.flatnonzero(frozen) for g in self._geometries[i]]
+            declaration = CollisionFilterDeclaration().ExcludeWithin(GeometrySet(geometries))
+            self._filter_ids[0] = manager.ApplyTransient(declaration)
         self.freezer.set_frozen_set(freezer_context, FrozenSet(frozen.copy(), self.positions(root)))
 
     def freeze_far_from(self, root: Context, p_WF: np.ndarray, radius: float | None = None) -> None:
@@ -137,9 +133,10 @@ class SceneObjects:
         self.set_frozen(root, distance > radius)
 
     def hand_points(self, root: Context) -> np.ndarray:
-        """(5, 3) world positions of the four fingertips and the palm."""
+        """(5, 3) world positions of the four fingertips (index, middle, ring, thumb) and the palm centre."""
         plant_context = self.plant.GetMyContextFromRoot(root)
-        return np.array([f.CalcPoseInWorld(plant_context).translation() for f in self._hand_frames])
+        tips = [f.CalcPoseInWorld(plant_context).translation() for f in self._tip_frames]
+        return np.array(tips + [self._palm_frame.CalcPoseInWorld(plant_context) @ p_PalmPc_Palm])
 
     def update(self, root: Context) -> list[str]:
         """Wakes frozen objects the hand or a moving object comes near; call once per control step.
