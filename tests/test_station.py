@@ -5,6 +5,7 @@ import sys
 
 import numpy as np
 import pytest
+from pydrake.multibody.tree import BodyIndex
 
 from seqdex_drake import CANONICAL_JOINTS, LoadScenario, MakeControllerPlant, MakeStation, ScenarioNames
 from seqdex_drake.harness import MakeStationHarness
@@ -60,7 +61,7 @@ def test_controller_plant_is_the_arm_with_a_frozen_hand():
     full = MakeStation(LoadScenario("grasp")).GetSubsystemByName("plant")
     hand = full.GetModelInstanceByName("allegro")
     hand_mass = sum(full.get_body(i).default_mass() for i in full.GetBodyIndices(hand))
-    arm_hand_mass = sum(plant.get_body(i).default_mass() for i in range(plant.num_bodies()))
+    arm_hand_mass = sum(plant.get_body(BodyIndex(i)).default_mass() for i in range(plant.num_bodies()))
     arm_mass = sum(full.get_body(i).default_mass() for i in full.GetBodyIndices(full.GetModelInstanceByName("franka")))
     assert arm_hand_mass == pytest.approx(arm_mass + hand_mass)
 

@@ -33,16 +33,16 @@ BOX_WALL_HEIGHT = 0.165
 class PileSettings:
     """How piles are dropped and settled."""
 
-    batch_size: int = 12
-    """Blocks dropped together; earlier batches are frozen while a batch falls."""
+    grid: tuple[int, int] = (4, 3)
+    """Release cells along x and y: one block per cell per batch, so released blocks never overlap."""
     batch_seconds: float = 0.6
     """Simulated time a batch falls and settles before it is frozen."""
     relax_seconds: float = 0.4
     """Final all-dynamic settling time."""
     drop_height: float = 0.10
     """Height (m) above the current pile top at which a batch is released."""
-    margin: float = 0.035
-    """Keep-out distance (m) from the box's inner walls for release positions."""
+    jitter: float = 0.006
+    """Random offset (m) of a release position from its cell centre."""
 
 
 def InsideBox(q_objects: np.ndarray, tolerance: float = 0.005) -> np.ndarray:
@@ -66,19 +66,23 @@ def SettlePile(simulator: Simulator, objects: SceneObjects, seed: int,
     objects.park(root)
     order = list(range(len(objects.names)))
     _shuffle(order, generator)
+    nx, ny = settings.grid
+    cell = 2 * BOX_INNER_HALF / [nx, ny]
+    centers = [BOX_CENTER[:2] - BOX_INNER_HALF + cell * ([i, j] + np.array([0.5, 0.5]))
+               for i in range(nx) for j in range(ny)]
     placed: list[int] = []
-    for start in range(0, len(order), settings.batch_size):
-        batch = order[start:start + settings.batch_size]
+    for start in range(0, len(order), nx * ny):
+        batch = order[start:start + nx * ny]
         top = max([BOX_CENTER[2]] + [objects.positions(root)[i, 6] for i in placed])
         for k, i in enumerate(batch):
-            xy = BOX_CENTER[:2] + (BOX_INNER_HALF - settings.margin) * (2 * _uniform(generator, 2) - 1)
-            z = top + settings.drop_height + 0.04 * k
+            xy = centers[k] + settings.jitter * (2 * _uniform(generator, 2) - 1)
             rpy = RollPitchYaw(*(np.pi * (2 * _uniform(generator, 3) - 1)))
-            objects.set_pose(root, objects.names[i], RigidTransform(rpy, [*xy, z]), frozen=False)
+            X_WB = RigidTransform(rpy, [*xy, top + settings.drop_height])
+            objects.set_pose(root, objects.names[i], X_WB, frozen=False)
         mask = np.ones(len(objects.names), dtype=bool)
         mask[batch] = False
         objects.set_frozen(root, mask)
-        simulator.AdvanceTo(root.get_time() + settings.batch_seconds + 0.04 * len(batch) ** 0.5)
+        simulator.AdvanceTo(root.get_time() + settings.batch_seconds)
         placed += batch
     objects.set_frozen(root, np.zeros(len(objects.names), dtype=bool))
     simulator.AdvanceTo(root.get_time() + settings.relax_seconds)
@@ -106,6 +110,7 @@ def SavePiles(path: str | Path, piles: np.ndarray, object_names: list[str], scen
                      object_names=np.array(object_names), scenario=np.array(scenario_name))
             stream.flush()
             os.fsync(stream.fileno())
+        os.chmod(tmp, 0o644)
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
