@@ -56,10 +56,11 @@ class FreezeConfig:
 
     enabled: bool = False
     """Freeze loose objects far from the hand: they stay put, cost no contact solve, and wake when touched."""
-    active_radius: float = 0.10
-    """Objects whose centre is within this distance (m) of the focus point stay dynamic at reset."""
-    wake_radius: float = 0.07
-    """A frozen object within this distance (m) of a fingertip, the palm or a moving object wakes."""
+    active_radius: float = 0.07
+    """Objects whose centre is within this distance (m) of the focus point (the target) stay dynamic at reset."""
+    wake_radius: float = 0.09
+    """A frozen object whose centre is within this distance (m) of a fingertip, the palm centre or a moving
+    object wakes (half a 1x4 block plus a fingertip and a margin); touching it wakes it too."""
     wake_speed: float = 0.02
     """A dynamic object moving faster than this (m/s) can wake frozen neighbours within ``wake_radius``."""
     mass_scale: float = 100.0

@@ -67,3 +67,14 @@ def test_a_block_landing_on_a_frozen_block_wakes_it():
     harness.objects.set_pose(harness.context, "block_1", RigidTransform([0.265, 0.19, 0.75]))
     harness.step(15)
     assert not harness.objects.frozen_mask(harness.context)[3]
+
+
+def test_touching_wakes_a_block_beyond_the_wake_radius():
+    harness = MakeStationHarness(LoadScenario("grasp", scenario_text="{freeze: {wake_radius: 0.001}}"))
+    tip = harness.objects.hand_points(harness.context)[1]  # Middle fingertip (sphere radius 0.012).
+    # A 1x4 block lying under the fingertip, its end 2 mm into the fingertip sphere, its centre 7 cm away.
+    X_WB = RigidTransform(tip + [0.06 + 0.010, 0.0, -0.0575 / 2])
+    harness.objects.set_pose(harness.context, "block_5", X_WB, frozen=True)
+    assert harness.objects.update(harness.context) == []
+    harness.step(1, wake=False)  # Contact results are sampled: they appear after a step.
+    assert harness.objects.update(harness.context) == ["block_5"]

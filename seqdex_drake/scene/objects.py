@@ -45,6 +45,9 @@ class SceneObjects:
         self._filter_ids: dict[int, object] = {}
         hand = self.plant.GetModelInstanceByName("allegro")
         self._tip_frames = [self.plant.GetFrameByName(f, hand) for f in FINGERTIP_FRAMES]
+        self._robot_bodies = set(self.plant.GetBodyIndices(hand)) | set(
+            self.plant.GetBodyIndices(self.plant.GetModelInstanceByName("franka")))
+        self._object_of_body = {body.index(): i for i, body in enumerate(self.bodies)}
         self._palm_frame = self.plant.GetBodyByName(PALM_BODY, hand).body_frame()
 
     # ----------------------------------------------------------------------------------------- access
@@ -139,9 +142,9 @@ class SceneObjects:
         return np.array(tips + [self._palm_frame.CalcPoseInWorld(plant_context) @ p_PalmPc_Palm])
 
     def update(self, root: Context) -> list[str]:
-        """Wakes frozen objects the hand or a moving object comes near; call once per control step.
+        """Wakes frozen objects the hand touches or comes near, or that a moving object touches or nears.
 
-        Returns the names of the objects woken.
+        Call once per control step. Returns the names of the objects woken.
         """
         frozen = self.frozen_mask(root)
         if not frozen.any():
@@ -151,11 +154,26 @@ class SceneObjects:
         v = self.plant.GetVelocities(plant_context)
         speed = np.array([np.linalg.norm(v[b.floating_velocities_start_in_v() + 3:
                                            b.floating_velocities_start_in_v() + 6]) for b in self.bodies])
-        movers = p_WO[(~frozen) & (speed > self.scenario.freeze.wake_speed)]
-        sources = np.vstack([self.hand_points(root), movers])
+        moving = (~frozen) & (speed > self.scenario.freeze.wake_speed)
+        sources = np.vstack([self.hand_points(root), p_WO[moving]])
         near = np.min(np.linalg.norm(p_WO[:, None, :] - sources[None, :, :], axis=2), axis=1)
         wake = frozen & (near < self.scenario.freeze.wake_radius)
+        wake |= frozen & self._touched(plant_context, frozen, moving)
         if not wake.any():
             return []
         self.set_frozen(root, frozen & ~wake)
         return [n for n, w in zip(self.names, wake, strict=True) if w]
+
+    def _touched(self, plant_context: Context, frozen: np.ndarray, moving: np.ndarray) -> np.ndarray:
+        """Frozen objects in contact with the robot or with a moving object (last step's contacts)."""
+        touched = np.zeros(len(self.names), dtype=bool)
+        results = self.plant.get_contact_results_output_port().Eval(plant_context)
+        for k in range(results.num_point_pair_contacts()):
+            info = results.point_pair_contact_info(k)
+            a, b = self._object_of_body.get(info.bodyA_index()), self._object_of_body.get(info.bodyB_index())
+            for mine, other, other_body in ((a, b, info.bodyB_index()), (b, a, info.bodyA_index())):
+                if mine is None or not frozen[mine]:
+                    continue
+                if (other is not None and moving[other]) or other_body in self._robot_bodies:
+                    touched[mine] = True
+        return touched
