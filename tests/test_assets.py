@@ -29,6 +29,17 @@ TOOL_URLS = [(tools.tool_sdf_url(name), "tool") for name in sorted(tools.TOOL_SP
 SEATED_Z = blocks.BODY_HEIGHT  # Height of a block's frame when it sits on a one-layer plate or on a block.
 
 
+
+def load_mesh(path) -> trimesh.Trimesh:
+    """Loads a generated OBJ with its own vertex indexing (trimesh's loader splits vertices per face normal)."""
+    vertices, faces = [], []
+    for line in open(path):
+        if line.startswith("v "):
+            vertices.append([float(c) for c in line.split()[1:4]])
+        elif line.startswith("f "):
+            faces.append([int(corner.split("/")[0]) - 1 for corner in line.split()[1:4]])
+    return trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
+
 def _parser(plant) -> Parser:
     """A Parser resolving package://seqdex_models to this repository's models/."""
     parser = Parser(plant)
@@ -73,7 +84,7 @@ def test_pile_directives_add_72_blocks(resolution):
 
 @pytest.mark.parametrize("block_type", BLOCK_TYPES)
 def test_block_mass_properties_come_from_the_visual_mesh(block_type):
-    mesh = trimesh.load(_block_dir(block_type) / "visual.obj", process=False)
+    mesh = load_mesh(_block_dir(block_type) / "visual.obj")
     assert mesh.is_watertight
     diagram, plant, _, instance = _load(blocks.block_sdf_url(block_type, "fine"))
     body = plant.GetBodyByName("block", instance)
@@ -90,10 +101,10 @@ def test_block_bounds_match_footprint_and_height(block_type):
     spec = blocks.BLOCK_SPECS[block_type]
     length, width = spec.footprint
     expected = np.array([[-length / 2, -width / 2, 0.0], [length / 2, width / 2, 0.0575]])
-    mesh = trimesh.load(_block_dir(block_type) / "visual.obj", process=False)
+    mesh = load_mesh(_block_dir(block_type) / "visual.obj")
     np.testing.assert_allclose(mesh.bounds, expected, atol=1e-3)
     for resolution in blocks.RESOLUTIONS:
-        pieces = [trimesh.load(p, process=False) for p in sorted((_block_dir(block_type) / resolution).glob("*.obj"))]
+        pieces = [load_mesh(p) for p in sorted((_block_dir(block_type) / resolution).glob("*.obj"))]
         bounds = np.vstack([p.bounds for p in pieces])
         np.testing.assert_allclose([bounds.min(axis=0), bounds.max(axis=0)], expected, atol=1e-3)
         # Convex up to the 1 um rounding of the written vertices (Drake uses the hull of each piece).
@@ -108,7 +119,7 @@ def test_every_visual_mesh_is_watertight():
     paths += sorted(MODELS_DIR.glob("fixtures/meshes/*_visual.obj"))
     assert len(paths) == 8 + 5 + 4
     for path in paths:
-        assert trimesh.load(path, process=False).is_watertight, path
+        assert load_mesh(path).is_watertight, path
 
 
 def test_regenerating_block_7_is_byte_identical(tmp_path):
@@ -136,7 +147,7 @@ def test_urls_and_errors():
 
 @pytest.mark.parametrize("name", sorted(tools.TOOL_SPECS))
 def test_tool_size_origin_and_mass(name):
-    meshes = [trimesh.load(p, process=False) for p in sorted((MODELS_DIR / "tools" / name).glob("visual_*.obj"))]
+    meshes = [load_mesh(p) for p in sorted((MODELS_DIR / "tools" / name).glob("visual_*.obj"))]
     bounds = np.vstack([m.bounds for m in meshes])
     low, high = bounds.min(axis=0), bounds.max(axis=0)
     np.testing.assert_allclose(high - low, tools.TOOL_SPECS[name].bounding_box, atol=1e-3)

@@ -61,7 +61,8 @@ def test_controller_plant_is_the_arm_with_a_frozen_hand():
     full = MakeStation(LoadScenario("grasp")).GetSubsystemByName("plant")
     hand = full.GetModelInstanceByName("allegro")
     hand_mass = sum(full.get_body(i).default_mass() for i in full.GetBodyIndices(hand))
-    arm_hand_mass = sum(plant.get_body(BodyIndex(i)).default_mass() for i in range(1, plant.num_bodies()))  # 0 is the world.
+    # Body 0 is the world (NaN mass).
+    arm_hand_mass = sum(plant.get_body(BodyIndex(i)).default_mass() for i in range(1, plant.num_bodies()))
     arm_mass = sum(full.get_body(i).default_mass() for i in full.GetBodyIndices(full.GetModelInstanceByName("franka")))
     assert arm_hand_mass == pytest.approx(arm_mass + hand_mass)
 

@@ -1,0 +1,82 @@
+"""Reward terms of the paper's appendix ("Reward functions"), as named, individually reported terms.
+
+Every function returns a dict ``{term_name: value}``; the reward is the sum of the values. Notation:
+``fingertip_distance`` is the sum over the four fingertips of their distance to the object (Sigma f_i),
+``action`` the 19-dim policy action, ``hand_torque`` the torques of the 16 Allegro motors (the paper's
+"commanded torques"; the arm's tens of N m would swamp the other terms).
+
+One deliberate deviation: the paper writes the Grasp reward as ``exp[alpha0 * min(e0 - Sigma f, 0)]`` with
+``alpha0 = -5``, which *grows* as the fingers move away (the min term is <= 0). We use the evidently intended
+``exp[-alpha0 * min(e0 - Sigma f, 0)] = exp[5 * min(e0 - Sigma f, 0)]``, equal to 1 within e0 and decaying
+beyond it.
+"""
+
+import dataclasses
+
+import numpy as np
+
+
+@dataclasses.dataclass
+class RewardWeights:
+    """The lambda, alpha and e0 values of one sub-task's reward (paper appendix)."""
+
+    progress: float = 1.0
+    """lambda_1: weight of the task-progress term (pixels, rotation, grasp closeness, goal closeness)."""
+    fingertip: float = 1.0
+    """Weight of min(e0 - Sigma f, 0) (Search/Orient lambda_2, Insert lambda_2 = 0)."""
+    action: float = -0.001
+    """Weight of ||a||^2."""
+    torque: float = -0.003
+    """Weight of ||tau||^2."""
+    e0: float = 0.1
+    """Fingertip distance budget e0 (m)."""
+    alpha0: float = 20.0
+    """Position (Insert) or closeness (Grasp, magnitude) sharpness alpha_0."""
+    alpha1: float = 1.0
+    """Rotation sharpness alpha_1 (Insert)."""
+
+
+def penalties(weights: RewardWeights, action: np.ndarray, hand_torque: np.ndarray) -> dict[str, float]:
+    """The action and torque penalty terms shared by every sub-task."""
+    return {"action_penalty": weights.action * float(np.dot(action, action)),
+            "torque_penalty": weights.torque * float(np.dot(hand_torque, hand_torque))}
+
+
+def fingertip_term(weights: RewardWeights, fingertip_distance: float) -> float:
+    """lambda * min(e0 - Sigma f, 0): zero when the fingertips are within e0 in total, negative beyond."""
+    return weights.fingertip * min(weights.e0 - fingertip_distance, 0.0)
+
+
+def quaternion_angle(q_a: np.ndarray, q_b: np.ndarray) -> float:
+    """Rotation angle (rad) between unit quaternions [w, x, y, z]: 2 asin(clamp(||vec(q_a conj(q_b))||, 0, 1))."""
+    w0, v0, w1, v1 = q_a[0], np.asarray(q_a[1:]), q_b[0], -np.asarray(q_b[1:])
+    vec = w0 * v1 + w1 * v0 + np.cross(v0, v1)
+    return 2.0 * float(np.arcsin(np.clip(np.linalg.norm(vec), 0.0, 1.0)))
+
+
+def search_reward(weights, target_pixels, fingertip_distance, action, hand_torque) -> dict[str, float]:
+    """Search: lambda1 P + lambda2 min(e0 - Sigma f, 0) + penalties (lambda = 5, 1, -0.001, -0.003; e0 = 0.2)."""
+    return {"pixels": weights.progress * float(target_pixels),
+            "fingertip": fingertip_term(weights, fingertip_distance), **penalties(weights, action, hand_torque)}
+
+
+def orient_reward(weights, rotation_from_start, fingertip_distance, action, hand_torque) -> dict[str, float]:
+    """Orient: lambda1 theta + lambda2 min(e0 - Sigma f, 0) + penalties, theta = rotation since the start."""
+    return {"rotation": weights.progress * float(rotation_from_start),
+            "fingertip": fingertip_term(weights, fingertip_distance), **penalties(weights, action, hand_torque)}
+
+
+def grasp_reward(weights, fingertip_distance, action, hand_torque) -> dict[str, float]:
+    """Grasp (blocks and tools): lambda1 exp[|alpha0| min(e0 - Sigma f, 0)] + penalties (see module note)."""
+    closeness = np.exp(abs(weights.alpha0) * min(weights.e0 - fingertip_distance, 0.0))
+    return {"closeness": weights.progress * float(closeness), **penalties(weights, action, hand_torque)}
+
+
+def goal_reward(weights, position_error, rotation_error, fingertip_distance, action, hand_torque) -> dict[str, float]:
+    """Insert and tool Reorient: lambda1 exp[-(alpha0 ||x_o - x_g|| + alpha1 d_rot)] + lambda2 min(...) + penalties.
+
+    ``rotation_error`` is the paper's 2 asin(clamp(||d_a||, 0, 1)), see :func:`quaternion_angle`.
+    """
+    closeness = np.exp(-(weights.alpha0 * position_error + weights.alpha1 * rotation_error))
+    return {"goal": weights.progress * float(closeness), "fingertip": fingertip_term(weights, fingertip_distance),
+            **penalties(weights, action, hand_torque)}
