@@ -59,10 +59,16 @@ class FreezeConfig:
     active_radius: float = 0.07
     """Objects whose centre is within this distance (m) of the focus point (the target) stay dynamic at reset."""
     wake_radius: float = 0.09
-    """A frozen object whose centre is within this distance (m) of a fingertip, the palm centre or a moving
-    object wakes (half a 1x4 block plus a fingertip and a margin); touching it wakes it too."""
-    wake_speed: float = 0.02
-    """A dynamic object moving faster than this (m/s) can wake frozen neighbours within ``wake_radius``."""
+    """A frozen object whose centre is within this distance (m) of a fingertip or the palm centre wakes (half
+    a 1x4 block plus a fingertip and a margin); the robot touching it wakes it too."""
+    wake_speed: float = 0.1
+    """A dynamic object moving faster than this (m/s) wakes the frozen objects it touches (above the
+    point-contact resting jitter of a few cm/s)."""
+    sleep_speed: float = 0.01
+    """A dynamic object slower than this (m/s) ..."""
+    sleep_ticks: int = 30
+    """... for this many consecutive control steps, and farther than ``wake_radius`` from the hand, is frozen
+    again where it rests (0 disables re-freezing)."""
     mass_scale: float = 100.0
     """Frozen objects' mass multiplier, so a dynamic object resting on one does not push it away."""
 

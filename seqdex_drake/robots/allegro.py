@@ -63,6 +63,11 @@ PALM_BODY = "palm"
 p_PalmPc_Palm = np.array([0.0, 0.0, 0.0475])
 """Centre Pc of the palm box in the palm frame [m]; the palm spans z in [0, 0.095] from the wrist plate."""
 
+p_PalmHc_Palm = np.array([0.04, 0.0, 0.13])
+"""Hand centre Hc in the palm frame [m]: in front of the palm face, between the curled fingers and the thumb,
+where a grasped object sits. The approach controller and the sub-task resets place this point 5 cm above
+the target (the paper's "end-effector 5 cm above it")."""
+
 FINGERTIP_FRAMES = ("index_tip", "middle_tip", "ring_tip", "thumb_tip")
 """Fingertip bodies/frames in canonical finger order; each sits at the centre of its fingertip sphere."""
 

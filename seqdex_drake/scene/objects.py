@@ -43,6 +43,8 @@ class SceneObjects:
         self._static = [g for body in self.plant.GetBodiesWeldedTo(self.plant.world_body())
                         for g in self.plant.GetCollisionGeometriesForBody(body)]
         self._filter_ids: dict[int, object] = {}
+        self._still_ticks = np.zeros(len(self.names), dtype=int)
+        self._last_speed = np.zeros(len(self.names))
         hand = self.plant.GetModelInstanceByName("allegro")
         self._tip_frames = [self.plant.GetFrameByName(f, hand) for f in FINGERTIP_FRAMES]
         self._robot_bodies = set(self.plant.GetBodyIndices(hand)) | set(
@@ -111,8 +113,20 @@ class SceneObjects:
             self.set_pose(root, name, self.parking_pose(name), frozen=True)
 
     # --------------------------------------------------------------------------------------- freezing
-    def set_frozen(self, root: Context, frozen: np.ndarray) -> None:
-        """Freezes exactly the objects in mask ``frozen`` at their current poses; wakes the others."""
+    def get_state(self, root: Context) -> dict:
+        """Everything besides the plant state that the objects' future depends on (for exact restores)."""
+        frozen_set = self.freezer.frozen_set(self.freezer.GetMyContextFromRoot(root))
+        return {"frozen": frozen_set.frozen.copy(), "q_pin": frozen_set.q_pin.copy(),
+                "still_ticks": self._still_ticks.copy(), "last_speed": self._last_speed.copy()}
+
+    def set_state(self, root: Context, state: dict) -> None:
+        """Restores :meth:`get_state` output (after the plant state has been restored)."""
+        self.set_frozen(root, state["frozen"], q_pin=state["q_pin"])
+        self._still_ticks = np.array(state["still_ticks"])
+        self._last_speed = np.array(state["last_speed"])
+
+    def set_frozen(self, root: Context, frozen: np.ndarray, q_pin: np.ndarray | None = None) -> None:
+        """Freezes exactly the objects in mask ``frozen`` at their current poses (or ``q_pin``); wakes the others."""
         frozen = np.asarray(frozen, dtype=bool).reshape(len(self.names))
         plant_context, scene_graph_context, freezer_context = self._contexts(root)
         for body, is_frozen in zip(self.bodies, frozen, strict=True):
@@ -127,7 +141,9 @@ class SceneObjects:
             geometries = self._static + [g for i in np.flatnonzero(frozen) for g in self._geometries[i]]
             declaration = CollisionFilterDeclaration().ExcludeWithin(GeometrySet(geometries))
             self._filter_ids[0] = manager.ApplyTransient(declaration)
-        self.freezer.set_frozen_set(freezer_context, FrozenSet(frozen.copy(), self.positions(root)))
+        pins = self.positions(root) if q_pin is None else np.array(q_pin, dtype=float)
+        self.freezer.set_frozen_set(freezer_context, FrozenSet(frozen.copy(), pins))
+        self._still_ticks[:] = 0
 
     def freeze_far_from(self, root: Context, p_WF: np.ndarray, radius: float | None = None) -> None:
         """Freezes every object whose origin is farther than ``radius`` (default: scenario's) from ``p_WF``."""
@@ -142,26 +158,31 @@ class SceneObjects:
         return np.array(tips + [self._palm_frame.CalcPoseInWorld(plant_context) @ p_PalmPc_Palm])
 
     def update(self, root: Context) -> list[str]:
-        """Wakes frozen objects the hand touches or comes near, or that a moving object touches or nears.
+        """Wakes frozen objects the hand touches or comes near, or that a fast-moving object touches;
+        freezes again objects that have rested, away from the hand, for ``freeze.sleep_ticks`` steps.
 
         Call once per control step. Returns the names of the objects woken.
         """
+        config = self.scenario.freeze
         frozen = self.frozen_mask(root)
-        if not frozen.any():
-            return []
         p_WO = self.positions(root)[:, 4:]
         plant_context = self.plant.GetMyContextFromRoot(root)
         v = self.plant.GetVelocities(plant_context)
         speed = np.array([np.linalg.norm(v[b.floating_velocities_start_in_v() + 3:
                                            b.floating_velocities_start_in_v() + 6]) for b in self.bodies])
-        moving = (~frozen) & (speed > self.scenario.freeze.wake_speed)
-        sources = np.vstack([self.hand_points(root), p_WO[moving]])
-        near = np.min(np.linalg.norm(p_WO[:, None, :] - sources[None, :, :], axis=2), axis=1)
-        wake = frozen & (near < self.scenario.freeze.wake_radius)
-        wake |= frozen & self._touched(plant_context, frozen, moving)
-        if not wake.any():
-            return []
-        self.set_frozen(root, frozen & ~wake)
+        hand = self.hand_points(root)
+        near_hand = np.min(np.linalg.norm(p_WO[:, None, :] - hand[None, :, :], axis=2), axis=1) < config.wake_radius
+        # Fast now or at the last check: an impact is over (slow again) by the end of the step it happens in.
+        moving = (~frozen) & (np.maximum(speed, self._last_speed) > config.wake_speed)
+        self._last_speed = speed
+        wake = frozen & (near_hand | self._touched(plant_context, frozen, moving)) if frozen.any() else frozen
+        still = (~frozen) & (speed < config.sleep_speed) & ~near_hand
+        self._still_ticks = np.where(still, self._still_ticks + 1, 0)
+        sleep = self._still_ticks >= config.sleep_ticks if config.enabled and config.sleep_ticks > 0 else still & False
+        if wake.any() or sleep.any():
+            ticks = self._still_ticks.copy()
+            self.set_frozen(root, (frozen & ~wake) | sleep)
+            self._still_ticks = np.where(sleep, 0, ticks)
         return [n for n, w in zip(self.names, wake, strict=True) if w]
 
     def _touched(self, plant_context: Context, frozen: np.ndarray, moving: np.ndarray) -> np.ndarray:

@@ -1,0 +1,216 @@
+"""A gymnasium environment for one sub-task over a Drake Simulator of the station.
+
+Action (19, in [-1, 1]): 16 Allegro joint targets scaled to the joint limits and EMA-smoothed, then the 3D
+wrist translation of the hand centre (``wrist_step`` m per step at 1), tracked by damped least-squares IK
+with the palm orientation held (as the release does). Observation: the paper's table for the sub-task
+(:mod:`seqdex_drake.systems.observations`). Time limits and simulator failures are truncations; task failure
+(the object left the table) is a termination. ``info`` carries every reward term, ``success`` and flags.
+"""
+
+import dataclasses
+
+import gymnasium as gym
+import numpy as np
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource
+
+from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, p_PalmHc_Palm, scale_action_to_limits
+from seqdex_drake.robots.arm_ik import PalmIK
+from seqdex_drake.scenario import LoadScenario
+from seqdex_drake.scene.objects import SceneObjects
+from seqdex_drake.station import MakeControllerPlant, MakeStation
+from seqdex_drake.systems.observations import ACTION_SIZE, ObservationAssembler, ObservationTarget
+from seqdex_drake.tasks.base import Task, TaskConfig
+
+
+@dataclasses.dataclass
+class EnvState:
+    """A restorable environment state (what forward initialization hands to the next sub-task)."""
+
+    plant_positions: np.ndarray
+    plant_velocities: np.ndarray
+    objects: dict
+    target_object: str
+    goal: np.ndarray
+    arm_target: np.ndarray
+    hand_target: np.ndarray
+    previous_action: np.ndarray
+
+
+class SubtaskEnv(gym.Env):
+    """One sub-task as a gymnasium environment.
+
+    Args:
+        task: a :class:`~seqdex_drake.tasks.base.Task` (see ``seqdex_drake.tasks.registry.make_task``).
+        meshcat: optional Meshcat for visualization (never in training workers).
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, task: Task, meshcat=None):
+        self.task = task
+        self.config: TaskConfig = task.config
+        self.scenario = LoadScenario(self.config.scenario)
+        builder = DiagramBuilder()
+        station = builder.AddNamedSystem("station", MakeStation(self.scenario, meshcat=meshcat))
+        self.plant = station.GetSubsystemByName("plant")
+        self._arm_source = builder.AddNamedSystem("franka.target", ConstantVectorSource(np.zeros(14)))
+        self._hand_source = builder.AddNamedSystem("allegro.target", ConstantVectorSource(np.zeros(32)))
+        self._action_source = builder.AddNamedSystem("previous_action", ConstantVectorSource(np.zeros(ACTION_SIZE)))
+        builder.Connect(self._arm_source.get_output_port(), station.GetInputPort("franka.desired_state"))
+        builder.Connect(self._hand_source.get_output_port(), station.GetInputPort("allegro.desired_state"))
+        assembler = builder.AddNamedSystem("observation", ObservationAssembler(self.plant, task.goal, task.pixels))
+        for name in ("franka.state", "allegro.state", "allegro.net_actuation", "body_poses",
+                     "body_spatial_velocities"):
+            builder.Connect(station.GetOutputPort(name), assembler.GetInputPort(name))
+        if task.pixels:
+            camera = next(iter(self.scenario.cameras))
+            builder.Connect(station.GetOutputPort(f"{camera}.label_image"), assembler.GetInputPort("label_image"))
+        builder.Connect(self._action_source.get_output_port(), assembler.GetInputPort("previous_action"))
+        self.diagram = builder.Build()
+        self.station, self.assembler = station, assembler
+        self.simulator = Simulator(self.diagram)
+        self.context = self.simulator.get_mutable_context()
+        self.objects = SceneObjects(station, self.scenario)
+        self._controller_plant = MakeControllerPlant(self.scenario)
+        self.ik = PalmIK(self._controller_plant, p_PalmC_Palm=p_PalmHc_Palm)
+        self.arm = self.plant.GetModelInstanceByName("franka")
+        self.hand = self.plant.GetModelInstanceByName("allegro")
+        self.R_WP_hold = self.ik.palm_pose(np.asarray(self.scenario.robot.arm_home)).rotation()
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (ACTION_SIZE,), np.float32)
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (assembler.size,), np.float32)
+        self.target_object = ""
+        self.goal = np.array([0, 0, 0, 1.0, 0, 0, 0])
+        self._steps = 0
+        self._arm_target = np.asarray(self.scenario.robot.arm_home, dtype=float)
+        self._hand_target = np.array(ALLEGRO_OPEN_Q)
+        self._previous_action = np.zeros(ACTION_SIZE)
+
+    # ------------------------------------------------------------------------------------------- state
+    @property
+    def plant_context(self):
+        return self.plant.GetMyMutableContextFromRoot(self.context)
+
+    def arm_q(self) -> np.ndarray:
+        return self.plant.GetPositions(self.plant_context, self.arm)
+
+    def hand_q(self) -> np.ndarray:
+        return self.plant.GetPositions(self.plant_context, self.hand)
+
+    def object_body(self):
+        return self.objects.bodies[self.objects.index(self.target_object)]
+
+    def object_pose(self):
+        return self.plant.EvalBodyPoseInWorld(self.plant_context, self.object_body())
+
+    def object_position(self) -> np.ndarray:
+        """World position of the target object's centre of mass."""
+        return self.object_pose() @ self.object_body().default_com()
+
+    def fingertip_distance(self) -> float:
+        """Sum of the four fingertips' distances to the target object's centre (the paper's Sigma f)."""
+        return float(np.sum(np.linalg.norm(self.objects.hand_points(self.context)[:4] - self.object_position(),
+                                           axis=1)))
+
+    def hand_torque(self) -> np.ndarray:
+        return self.station.GetOutputPort("allegro.net_actuation").Eval(self.station.GetMyContextFromRoot(self.context))
+
+    def set_robot(self, arm_q: np.ndarray, hand_q: np.ndarray) -> None:
+        """Places the robot at rest at these positions and holds them as PD targets."""
+        self.plant.SetPositions(self.plant_context, self.arm, arm_q)
+        self.plant.SetPositions(self.plant_context, self.hand, hand_q)
+        self.plant.SetVelocities(self.plant_context, self.arm, np.zeros(7))
+        self.plant.SetVelocities(self.plant_context, self.hand, np.zeros(16))
+        self._hand_target = np.array(hand_q, dtype=float)
+        self._set_sources(np.asarray(arm_q, dtype=float), self._hand_target, np.zeros(ACTION_SIZE))
+
+    def hover_arm(self, p_WT: np.ndarray) -> np.ndarray:
+        """Arm positions placing the hand centre ``hover_height`` above target point ``p_WT``, palm down."""
+        q, error = self.ik.solve(np.asarray(self.scenario.robot.arm_home), np.asarray(p_WT) +
+                                 [0, 0, self.config.hover_height], self.R_WP_hold)
+        if error > 0.01:
+            raise RuntimeError(f"the hover pose above {np.round(p_WT, 3)} is out of reach ({error:.3f} m)")
+        return q
+
+    def set_target(self, name: str, goal: np.ndarray | None = None) -> None:
+        """Declares the episode's target object (and goal pose [xyz, wxyz]) for observations and rewards."""
+        self.target_object = name
+        if goal is not None:
+            self.goal = np.asarray(goal, dtype=float)
+        label = int(self.object_body().index())  # MultibodyPlant labels each body's geometry by body index.
+        target = ObservationTarget(object_body=label, goal=self.goal, label=label)
+        self.assembler.set_target(self.assembler.GetMyMutableContextFromRoot(self.context), target)
+
+    def get_state(self) -> EnvState:
+        return EnvState(self.plant.GetPositions(self.plant_context).copy(),
+                        self.plant.GetVelocities(self.plant_context).copy(), self.objects.get_state(self.context),
+                        self.target_object, self.goal.copy(), self._arm_target.copy(), self._hand_target.copy(),
+                        self._previous_action.copy())
+
+    def set_state(self, state: EnvState) -> None:
+        """Restores a saved state exactly (a few state writes; no re-simulation)."""
+        self.plant.SetPositions(self.plant_context, state.plant_positions)
+        self.plant.SetVelocities(self.plant_context, state.plant_velocities)
+        self.objects.set_state(self.context, state.objects)
+        self.set_target(state.target_object, state.goal)
+        self._hand_target = np.array(state.hand_target)
+        self._set_sources(np.array(state.arm_target), self._hand_target, np.array(state.previous_action))
+
+    def _set_sources(self, arm_q, hand_q, previous_action) -> None:
+        for source, value in ((self._arm_source, np.r_[arm_q, np.zeros(7)]),
+                              (self._hand_source, np.r_[hand_q, np.zeros(16)]),
+                              (self._action_source, previous_action)):
+            source.get_mutable_source_value(source.GetMyMutableContextFromRoot(self.context)).SetFromVector(value)
+        self._arm_target = np.array(arm_q, dtype=float)
+        self._previous_action = np.array(previous_action, dtype=float)
+
+    def observation(self) -> np.ndarray:
+        return self.assembler.get_output_port().Eval(self.assembler.GetMyContextFromRoot(self.context)).astype(
+            np.float32)
+
+    # ------------------------------------------------------------------------------------------ gym API
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.context.SetTime(0.0)
+        initial_state = (options or {}).get("initial_state")
+        if initial_state is not None:
+            if not isinstance(initial_state, EnvState):
+                raise TypeError("options['initial_state'] must be an EnvState (env.get_state() or a buffer)")
+            self.set_state(initial_state)
+        else:
+            self.task.reset(self, self.np_random)
+        self.simulator.Initialize()
+        self._steps = 0
+        return self.observation(), {"success": bool(self.task.is_success(self))}
+
+    def step(self, action):
+        action = np.asarray(action, dtype=float)
+        if action.shape != (ACTION_SIZE,):
+            raise ValueError(f"action must have shape ({ACTION_SIZE},), got {action.shape}")
+        if not np.all(np.isfinite(action)):
+            return self.observation(), 0.0, False, True, {"nan_action": True, "success": False}
+        action = np.clip(action, -1.0, 1.0)
+        ema = self.config.ema
+        self._hand_target = ema * scale_action_to_limits(action[:16]) + (1 - ema) * self._hand_target
+        p_WC = self.ik.palm_pose(self.arm_q()).translation() + self.config.wrist_step * action[16:]
+        arm_target = self.ik.step(self.arm_q(), p_WC, self.R_WP_hold)
+        self._set_sources(arm_target, self._hand_target, action)
+        info = {"nan_action": False, "simulator_error": False}
+        try:
+            self.simulator.AdvanceTo(self.context.get_time() + self.scenario.control_period)
+            self.objects.update(self.context)
+            observation = self.observation()
+        except RuntimeError as error:  # A failed contact solve, NaN state, ...: a truncation.
+            info.update(simulator_error=True, error=str(error), success=False)
+            return np.zeros(self.observation_space.shape, np.float32), 0.0, False, True, info
+        if not np.all(np.isfinite(observation)):
+            info.update(simulator_error=True, error="non-finite observation", success=False)
+            return np.nan_to_num(observation, nan=0.0, posinf=0.0, neginf=0.0), 0.0, False, True, info
+        self._steps += 1
+        terms = self.task.reward_terms(self, action)
+        info.update({f"reward/{k}": v for k, v in terms.items()})
+        info["success"] = bool(self.task.is_success(self))
+        terminated = bool(self.task.is_failure(self))
+        truncated = self._steps >= self.config.episode_length
+        return observation, float(sum(terms.values())), terminated, truncated, info

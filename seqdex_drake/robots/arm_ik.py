@@ -1,0 +1,71 @@
+"""Damped least-squares IK of the Franka for the palm centre (position) with the palm orientation held.
+
+The release drives the arm by Cartesian deltas through damped least-squares IK (damping 0.05) with a
+palm-down target orientation (FACTS.md); :class:`PalmIK` does the same on the controller plant (the Franka
+with the Allegro welded and frozen). One :meth:`PalmIK.step` is the per-control-tick wrist controller of the
+sub-task environments; :meth:`PalmIK.solve` iterates it to place the hand at reset.
+"""
+
+import numpy as np
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import JacobianWrtVariable
+
+from seqdex_drake.robots.allegro import PALM_BODY, p_PalmPc_Palm
+from seqdex_drake.robots.franka import FRANKA_Q_MAX, FRANKA_Q_MIN
+
+
+class PalmIK:
+    """Damped least-squares IK for a point fixed in the palm (default: the palm centre) and the palm orientation.
+
+    Args:
+        controller_plant: from :func:`seqdex_drake.station.MakeControllerPlant` (7 positions); kept alive here.
+        damping: the DLS damping (the release's 0.05).
+        orientation_weight: weight of the orientation error against the position error (1/m).
+        p_PalmC_Palm: the controlled point C in the palm frame (e.g. ``allegro.p_PalmHc_Palm``, the hand centre).
+    """
+
+    def __init__(self, controller_plant: MultibodyPlant, damping: float = 0.05, orientation_weight: float = 0.3,
+                 p_PalmC_Palm: np.ndarray = p_PalmPc_Palm):
+        if controller_plant.num_positions() != 7:
+            raise ValueError("PalmIK needs the 7-dof controller plant (MakeControllerPlant)")
+        self.plant = controller_plant
+        self.context = controller_plant.CreateDefaultContext()
+        hand = controller_plant.GetModelInstanceByName("allegro")
+        self.palm = controller_plant.GetBodyByName(PALM_BODY, hand).body_frame()
+        self.damping = damping
+        self.orientation_weight = orientation_weight
+        self.p_PalmC_Palm = np.asarray(p_PalmC_Palm, dtype=float)
+
+    def palm_pose(self, q_arm: np.ndarray) -> RigidTransform:
+        """X_WC: the controlled point with the palm's orientation, in the world, for arm positions ``q_arm``."""
+        self.plant.SetPositions(self.context, q_arm)
+        return self.palm.CalcPoseInWorld(self.context) @ RigidTransform(self.p_PalmC_Palm)
+
+    def step(self, q_arm: np.ndarray, p_WC_target: np.ndarray, R_WP_target: RotationMatrix,
+             max_step: float = 0.05) -> np.ndarray:
+        """One DLS step: the joint positions moving the palm centre toward the target, within joint limits."""
+        X_WPc = self.palm_pose(q_arm)
+        world = self.plant.world_frame()
+        J = self.plant.CalcJacobianSpatialVelocity(self.context, JacobianWrtVariable.kQDot, self.palm,
+                                                   self.p_PalmC_Palm, world, world)
+        position_error = np.asarray(p_WC_target) - X_WPc.translation()
+        rotation_error = (R_WP_target @ X_WPc.rotation().inverse()).ToAngleAxis()
+        error = np.r_[self.orientation_weight * rotation_error.angle() * rotation_error.axis(), position_error]
+        J = np.vstack([self.orientation_weight * J[:3], J[3:]])
+        dq = J.T @ np.linalg.solve(J @ J.T + self.damping**2 * np.eye(6), error)
+        norm = np.linalg.norm(dq)
+        if norm > max_step:
+            dq *= max_step / norm
+        return np.clip(q_arm + dq, FRANKA_Q_MIN, FRANKA_Q_MAX)
+
+    def solve(self, q_arm: np.ndarray, p_WC_target: np.ndarray, R_WP_target: RotationMatrix,
+              iterations: int = 300, tolerance: float = 1e-4) -> tuple[np.ndarray, float]:
+        """Iterates :meth:`step` from ``q_arm``; returns the solution and its remaining position error (m)."""
+        q = np.asarray(q_arm, dtype=float).copy()
+        for _ in range(iterations):
+            q = self.step(q, p_WC_target, R_WP_target, max_step=0.2)
+            error = np.linalg.norm(self.palm_pose(q).translation() - p_WC_target)
+            if error < tolerance:
+                break
+        return q, float(error)

@@ -1,0 +1,1 @@
+"""LeafSystems that run around the station: the operational-space approach controller, policies, switchers."""

@@ -1,0 +1,67 @@
+"""What every sub-task shares: its config dataclass and the hooks the environment calls.
+
+A sub-task module (``tasks/<name>.py``) starts with ``default_config()`` returning a :class:`TaskConfig`
+and defines a :class:`Task` subclass; ``tasks/registry.py`` maps names to them.
+"""
+
+import abc
+import dataclasses
+
+import numpy as np
+
+from seqdex_drake.tasks.rewards import RewardWeights
+
+
+@dataclasses.dataclass
+class TaskConfig:
+    """Configuration of one sub-task MDP (paper appendix and FACTS.md)."""
+
+    name: str = ""
+    """Registry name of the sub-task."""
+    scenario: str = ""
+    """Station scenario, ``family/name``."""
+    episode_length: int = 150
+    """Policy steps per episode (60 Hz); reaching it is a truncation."""
+    ema: float = 1.0
+    """EMA factor of the hand joint targets: target = ema * new + (1 - ema) * previous (1 = no smoothing)."""
+    wrist_step: float = 0.005
+    """Wrist (hand centre) translation per policy step at action 1 (m); 0.3 m/s at 60 Hz."""
+    reward: RewardWeights = dataclasses.field(default_factory=RewardWeights)
+    """The paper's lambda / alpha / e0 values for this sub-task."""
+    object_types: list[int] = dataclasses.field(default_factory=lambda: [1, 2, 3, 4, 5])
+    """Object variants sampled at reset (block types 1-5 train, 6-8 unseen; tools by index)."""
+    hover_height: float = 0.05
+    """The hand centre starts this far above the target (the paper's OSC hand-over point)."""
+    success_threshold: list[float] = dataclasses.field(default_factory=list)
+    """Task-specific success thresholds (documented by each task's default_config)."""
+    drop_height: float = 0.45
+    """An object whose centre falls below this height (m) has left the table: task failure (terminated)."""
+
+
+class Task(abc.ABC):
+    """Hooks of one sub-task; the environment owns the simulation and calls these.
+
+    Subclasses set ``goal`` / ``pixels`` (extra observation parts) and implement the methods below.
+    """
+
+    goal: bool = False
+    pixels: bool = False
+
+    def __init__(self, config: TaskConfig):
+        self.config = config
+
+    @abc.abstractmethod
+    def reset(self, env, rng: np.random.Generator) -> None:
+        """Samples the episode's initial state from the scenario's distribution (objects, arm, hand, target)."""
+
+    @abc.abstractmethod
+    def reward_terms(self, env, action: np.ndarray) -> dict[str, float]:
+        """The named reward terms of the current step."""
+
+    @abc.abstractmethod
+    def is_success(self, env) -> bool:
+        """The sub-task's success test on the current state."""
+
+    def is_failure(self, env) -> bool:
+        """Task failure (episode terminated): by default the target object left the table."""
+        return bool(env.object_position()[2] < self.config.drop_height)

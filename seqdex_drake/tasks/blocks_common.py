@@ -1,0 +1,57 @@
+"""Placing blocks for the Building Blocks sub-tasks: stable resting poses in the box, within reach.
+
+The paper's real-world protocol keeps task blocks 10 cm from the box edges; resets sample there too (the
+far 5 cm of the box is also out of the palm-down arm's reach).
+"""
+
+import numpy as np
+from pydrake.math import RigidTransform, RollPitchYaw
+
+from seqdex_drake.modeling.blocks import BLOCK_SPECS, TOTAL_HEIGHT
+from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q
+from seqdex_drake.scene.piles import BOX_CENTER, BOX_INNER_HALF
+
+BOX_MARGIN = 0.10
+#: Stable resting orientations (roll, pitch) of a brick: upright, upside down, on either long side.
+RESTING = {"upright": (0.0, 0.0), "upside_down": (np.pi, 0.0), "side_left": (np.pi / 2, 0.0),
+           "side_right": (-np.pi / 2, 0.0)}
+
+
+def block_name(block_type: int) -> str:
+    """Object name of the single block of ``block_type`` in the Orient/Grasp/Insert scenes."""
+    if block_type not in BLOCK_SPECS:
+        raise ValueError(f"unknown block type {block_type}; valid types: {sorted(BLOCK_SPECS)}")
+    return f"block_{block_type}"
+
+
+def resting_pose(block_type: int, roll: float, pitch: float, yaw: float, p_xy: np.ndarray,
+                 floor: float = BOX_CENTER[2]) -> RigidTransform:
+    """The pose of a block resting on ``floor`` at ``p_xy`` in the given orientation (bounding-box contact)."""
+    length, width = BLOCK_SPECS[block_type].footprint
+    rotation = RollPitchYaw(roll, pitch, yaw).ToRotationMatrix()
+    corners = np.array([[x, y, z] for x in (-length / 2, length / 2) for y in (-width / 2, width / 2)
+                        for z in (0.0, TOTAL_HEIGHT)])
+    lowest = np.min((rotation.matrix() @ corners.T)[2])
+    return RigidTransform(rotation, [p_xy[0], p_xy[1], floor - lowest + 0.0005])
+
+
+def sample_box_xy(rng: np.random.Generator) -> np.ndarray:
+    """A position on the box floor at least ``BOX_MARGIN`` from the inner walls."""
+    half = BOX_INNER_HALF - BOX_MARGIN
+    return BOX_CENTER[:2] + rng.uniform(-half, half)
+
+
+def place_single_block(env, rng: np.random.Generator, orientations: list[str]) -> str:
+    """Parks every object, puts one block of a sampled type in the box, hovers the open hand above it.
+
+    Returns the target object's name (also declared to the environment).
+    """
+    block_type = int(rng.choice(env.config.object_types))
+    name = block_name(block_type)
+    env.objects.park(env.context)
+    roll, pitch = RESTING[orientations[int(rng.integers(len(orientations)))]]
+    X_WB = resting_pose(block_type, roll, pitch, rng.uniform(-np.pi, np.pi), sample_box_xy(rng))
+    env.objects.set_pose(env.context, name, X_WB, frozen=False)
+    env.set_target(name)
+    env.set_robot(env.hover_arm(env.object_position()), ALLEGRO_OPEN_Q)
+    return name

@@ -1,0 +1,35 @@
+"""The sub-task registry: names to modules; creation, scripts and tests are driven from here."""
+
+from seqdex_drake.tasks import grasp, orient, search
+from seqdex_drake.tasks.base import Task, TaskConfig
+
+#: name -> (default_config, Task class)
+REGISTRY = {
+    "search": (search.default_config, search.SearchTask),
+    "orient": (orient.default_config, orient.OrientTask),
+    "grasp": (grasp.default_config, grasp.GraspTask),
+}
+
+
+def task_names() -> list[str]:
+    return list(REGISTRY)
+
+
+def default_config(name: str) -> TaskConfig:
+    """The default config of sub-task ``name``; unknown names raise a ValueError listing the valid ones."""
+    if name not in REGISTRY:
+        raise ValueError(f"unknown task '{name}'; valid tasks: {', '.join(REGISTRY)}")
+    return REGISTRY[name][0]()
+
+
+def make_task(name: str, config: TaskConfig | None = None) -> Task:
+    """Creates the task ``name`` with ``config`` (default: its default_config())."""
+    config = default_config(name) if config is None else config
+    return REGISTRY[name][1](config)
+
+
+def make_env(name: str, config: TaskConfig | None = None, meshcat=None):
+    """A :class:`~seqdex_drake.envs.subtask_env.SubtaskEnv` for sub-task ``name``."""
+    from seqdex_drake.envs.subtask_env import SubtaskEnv
+
+    return SubtaskEnv(make_task(name, config), meshcat=meshcat)

@@ -1,0 +1,62 @@
+"""Search (Building Blocks): dig the target block out of the pile until the top-down camera sees enough of it.
+
+Reset: a cached settled pile (``scripts/generate_piles.py``), a target of a sampled training type whose
+centre is at least 10 cm from the box walls, blocks farther than ``freeze.active_radius`` frozen (they wake
+when touched), the open hand 5 cm above the pile top over the target. Observation: the 159-dim base plus the
+target's pixel count in the 128 x 128 top-down label image. Reward: lambda1 * pixels + fingertip term and
+penalties (paper, lambda1 = 5). Success: pixels above the per-type threshold (release).
+"""
+
+import numpy as np
+
+from seqdex_drake.harness import ResolvePackageUrl
+from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q
+from seqdex_drake.scene.piles import BOX_CENTER, BOX_INNER_HALF, LoadPiles
+from seqdex_drake.tasks.base import Task, TaskConfig
+from seqdex_drake.tasks.blocks_common import BOX_MARGIN
+from seqdex_drake.tasks.rewards import RewardWeights, search_reward
+
+
+def default_config() -> TaskConfig:
+    return TaskConfig(
+        name="search", scenario="building_blocks/search", episode_length=75, ema=0.6,
+        reward=RewardWeights(progress=5.0, fingertip=1.0, action=-0.001, torque=-0.003, e0=0.2),
+        success_threshold=[20, 20, 15, 20, 20, 30, 30, 20])  # [visible pixels needed, per block type 1-8]
+
+
+def block_type_of(name: str) -> int:
+    """Block type of a pile object name ``block_<type>_<k>``."""
+    return int(name.split("_")[1])
+
+
+class SearchTask(Task):
+    """Uncover a buried block."""
+
+    pixels = True
+
+    def reset(self, env, rng) -> None:
+        piles = LoadPiles(ResolvePackageUrl(env.scenario.pile_file), env.objects.names)
+        q = piles[int(rng.integers(len(piles)))]
+        env.objects.set_positions(env.context, q, frozen=np.zeros(len(q), dtype=bool))
+        reachable = np.all(np.abs(q[:, 4:6] - BOX_CENTER[:2]) <= BOX_INNER_HALF - BOX_MARGIN, axis=1)
+        types = np.array([block_type_of(n) for n in env.objects.names])
+        candidates = np.flatnonzero(reachable & np.isin(types, env.config.object_types))
+        if candidates.size == 0:
+            raise RuntimeError("no reachable block of the requested types in this pile")
+        target = int(rng.choice(candidates))
+        env.objects.freeze_far_from(env.context, q[target, 4:])
+        env.set_target(env.objects.names[target])
+        nearby = np.linalg.norm(q[:, 4:6] - q[target, 4:6], axis=1) < 0.08
+        p_top = np.r_[q[target, 4:6], np.max(q[nearby, 6]) + 0.03]
+        env.set_robot(env.hover_arm(p_top), ALLEGRO_OPEN_Q)
+
+    def target_pixels(self, env) -> float:
+        return float(env.observation()[-1])
+
+    def reward_terms(self, env, action):
+        return search_reward(self.config.reward, self.target_pixels(env), env.fingertip_distance(), action,
+                             env.hand_torque())
+
+    def is_success(self, env) -> bool:
+        threshold = self.config.success_threshold[block_type_of(env.target_object) - 1]
+        return self.target_pixels(env) > threshold
