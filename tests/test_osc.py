@@ -19,7 +19,7 @@ from seqdex_drake.scene.objects import SceneObjects
 from seqdex_drake.systems.osc import AddOperationalSpaceController, OperationalSpaceController, OscParams
 
 SCENARIO = "building_blocks/grasp"
-MAX_TILT_DEG = 20.0
+MAX_TILT_DEG = 15.0
 """Largest deviation (deg) of the palm from its held orientation during an approach."""
 
 

@@ -66,9 +66,9 @@ class OscParams:
     """The approach ends once the controlled point is within this distance (m) of the hover point."""
     reengage_distance: float = 0.10
     """After a handover the approach restarts only when the target is farther than this (m) from the hand."""
-    position_kp: float = 120.0
+    position_kp: float = 200.0
     """Task-space stiffness (1/s^2) toward the hover point."""
-    position_kd: float = 26.0
+    position_kd: float = 30.0
     """Task-space damping (1/s); the commanded speed is (kp / kd) * error, capped at ``max_speed``."""
     orientation_kp: float = 120.0
     """Stiffness (1/s^2) toward the held orientation."""
@@ -80,7 +80,7 @@ class OscParams:
     """Largest commanded linear acceleration (m/s^2) of the controlled point (norm clip of a_des)."""
     max_angular_speed: float = 1.5
     """Largest commanded angular speed (rad/s) of the hand."""
-    orientation_weight: float = 0.3
+    orientation_weight: float = 0.1
     """Weight of the angular rows of the task cost relative to the translational rows (m^2/rad^2)."""
     posture_weight: float = 1e-3
     """Weight of the joint-space posture term (mostly shapes the null-space motion of the elbow)."""
@@ -116,11 +116,17 @@ class OscStatistics:
     """Wall-clock statistics of the per-tick QP, for benchmarks (not part of the simulated state)."""
 
     ticks: int = 0
+    """Periodic updates run."""
     failures: int = 0
+    """Updates whose QP OSQP did not solve."""
     solve_seconds_total: float = 0.0
+    """Summed wall time of ``OsqpSolver.Solve``."""
     solve_seconds_max: float = 0.0
+    """Largest wall time of one ``OsqpSolver.Solve``."""
     update_seconds_total: float = 0.0
+    """Summed wall time of whole updates (kinematics, dynamics, coefficient updates, solve)."""
     update_seconds_max: float = 0.0
+    """Largest wall time of one whole update."""
 
 
 class OperationalSpaceController(LeafSystem):
@@ -129,6 +135,10 @@ class OperationalSpaceController(LeafSystem):
     Input ports: ``franka.state`` (14: q, v), ``target_position`` (3, world, m).
     Output ports: ``franka.desired_state`` (14: q_cmd, v_cmd for the joint PD actuators),
     ``approach_active`` (1: 1.0 while the controller is in charge), ``qp_failures`` (1: count since init).
+
+    The command, the handover flag and the failure count are discrete state. The program, the controller
+    plant's scratch context, the warm start and :attr:`statistics` belong to the instance: one instance
+    serves one simulation at a time (each update rewrites the scratch from its inputs).
 
     Args:
         plant: the controller plant (:func:`~seqdex_drake.station.MakeControllerPlant`): 7 positions in
