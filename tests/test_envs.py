@@ -67,3 +67,33 @@ def test_gymnasium_env_checker():
 def test_unknown_task_lists_the_valid_ones():
     with pytest.raises(ValueError, match="valid tasks: search"):
         default_config("dance")
+
+
+def test_a_block_at_its_insert_goal_succeeds_with_the_top_reward():
+    from pydrake.common.eigen_geometry import Quaternion
+    from pydrake.math import RigidTransform, RotationMatrix
+
+    env = make_env("insert")
+    env.reset(seed=2)
+    goal = env.goal
+    X_goal = RigidTransform(Quaternion(goal[3:] / np.linalg.norm(goal[3:])), goal[:3])
+    env.objects.set_pose(env.context, env.target_object, X_goal, frozen=True)
+    terms = env.task.reward_terms(env, np.zeros(19))
+    assert env.task.is_success(env)
+    assert terms["goal"] == pytest.approx(1.0, abs=1e-6)
+    # The 180 deg yaw flip of a symmetric brick counts as the goal too.
+    flipped = RigidTransform(X_goal.rotation() @ RotationMatrix.MakeZRotation(np.pi), X_goal.translation())
+    env.objects.set_pose(env.context, env.target_object, flipped, frozen=True)
+    assert env.task.is_success(env)
+
+
+def test_a_block_in_free_fall_fails_grasp():
+    from pydrake.math import RigidTransform
+
+    env = make_env("grasp")
+    env.reset(seed=4)
+    env.objects.set_pose(env.context, env.target_object, RigidTransform([0.25, 0.19, 1.0]))
+    assert not env.task.is_success(env)  # High up, but the fingertips are far from it: not a grasp.
+    for _ in range(10):
+        env.step(np.zeros(19))
+    assert not env.task.is_success(env)

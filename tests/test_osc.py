@@ -90,7 +90,7 @@ class Rig:
         p_WH = self.osc.hover_point(p_WT)
         x_tick = self.arm_state().copy()
         summary = dict(first_within_1cm=None, handover_time=None, handover_error=None, max_torque_ratio=0.0,
-                       max_velocity_ratio=0.0, min_limit_margin=np.inf, contacts=0, max_tilt=0.0,
+                       max_velocity_ratio=0.0, min_limit_margin=np.inf, contacts=0, max_tilt=0.0, max_dip=-np.inf,
                        active=[])
         for k in range(1, round(duration / dt) + 1):
             self.simulator.AdvanceTo(k * dt)
@@ -103,7 +103,9 @@ class Rig:
             summary["min_limit_margin"] = min(summary["min_limit_margin"],
                                               np.min(np.r_[x[:7] - FRANKA_Q_MIN, FRANKA_Q_MAX - x[:7]]))
             summary["contacts"] = max(summary["contacts"], self.num_contacts())
-            error = np.linalg.norm(self.osc.controlled_point(x[:7]) - p_WH)
+            p_WC = self.osc.controlled_point(x[:7])
+            error = np.linalg.norm(p_WC - p_WH)
+            summary["max_dip"] = max(summary["max_dip"], p_WH[2] - p_WC[2])
             summary["max_tilt"] = max(summary["max_tilt"], self.tilt(x[:7]))
             if error < 0.01 and summary["first_within_1cm"] is None:
                 summary["first_within_1cm"] = k * dt
@@ -112,7 +114,7 @@ class Rig:
             if active == 0.0 and summary["handover_time"] is None:
                 summary["handover_time"] = k * dt
                 summary["handover_error"] = error
-                summary["handover_target_distance"] = np.linalg.norm(self.osc.controlled_point(x[:7]) - p_WT)
+                summary["handover_target_distance"] = np.linalg.norm(p_WC - p_WT)
             x_tick = x
         summary["final_error"] = error
         summary["final_tilt"] = self.tilt(x[:7])

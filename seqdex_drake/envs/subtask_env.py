@@ -173,6 +173,7 @@ class SubtaskEnv(gym.Env):
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
         self.context.SetTime(0.0)
+        self.simulator.Initialize()  # Some resets simulate (Insert's scripted hand-off).
         initial_state = (options or {}).get("initial_state")
         if initial_state is not None:
             if not isinstance(initial_state, EnvState):

@@ -1,0 +1,80 @@
+"""Insert (Building Blocks): put the block held in hand onto its goal on a 4x4 plate, studs seated.
+
+Reset: a hand-off state from Grasp (``options={"initial_state": ...}``, forward initialization), or
+standalone a scripted tripod pickup from the table (``tasks/handoff.py``). The goal: a plate of 1-3 layers
+stands on the baseplate (frozen: a static support), the block's goal is stud-aligned on its top at yaw 0 or
+90 deg. Observation: base + goal pose, position and quaternion differences (173). Reward: the paper's Insert
+formula. Success (release): within 0.02 m and 0.2 rad of the goal, a 180 deg yaw flip counting as the goal.
+"""
+
+import numpy as np
+from pydrake.math import RigidTransform, RollPitchYaw
+
+from seqdex_drake.modeling.blocks import BLOCK_SPECS, STUD_PITCH
+from seqdex_drake.systems.observations import pose_vector, quat_multiply
+from seqdex_drake.tasks.base import Task, TaskConfig
+from seqdex_drake.tasks.blocks_common import block_name
+from seqdex_drake.tasks.handoff import scripted_pickup
+from seqdex_drake.tasks.rewards import RewardWeights, goal_reward, quaternion_angle
+
+#: The 4x4 plates stand stud-aligned on the baseplate (baseplate top at z = 0.618).
+PLATE_XY = np.array([0.25, -0.23])
+BASEPLATE_TOP = 0.618
+LAYER_HEIGHT = 0.0375
+PLATE_CELLS = 4
+YAW_FLIP = np.array([0.0, 0.0, 0.0, 1.0])  # Quaternion [w, x, y, z] of a 180 deg turn about z.
+
+
+def default_config() -> TaskConfig:
+    return TaskConfig(
+        name="insert", scenario="building_blocks/insert", episode_length=125, ema=1.0,
+        reward=RewardWeights(progress=1.0, fingertip=0.0, action=-0.001, torque=-0.003, alpha0=20.0,
+                             alpha1=1.0, e0=0.06),
+        success_threshold=[0.02, 0.2])  # [position (m), rotation (rad)] tolerances
+
+
+def goal_pose(block_type: int, layers: int, cell: tuple[int, int], yaw: float) -> np.ndarray:
+    """Goal [x, y, z, qw, qx, qy, qz] of a block whose footprint starts at stud ``cell`` of the plate top."""
+    nx, ny = BLOCK_SPECS[block_type].cells
+    if yaw % np.pi:
+        nx, ny = ny, nx
+    offset = (np.array(cell) + np.array([nx, ny]) / 2 - PLATE_CELLS / 2) * STUD_PITCH
+    X = RigidTransform(RollPitchYaw(0.0, 0.0, yaw), [*(PLATE_XY + offset), BASEPLATE_TOP + layers * LAYER_HEIGHT])
+    return pose_vector(X)
+
+
+def goal_errors(env) -> tuple[float, float]:
+    """Position (m) and rotation (rad) errors of the block's origin frame to the goal, yaw-flip symmetric."""
+    pose = pose_vector(env.object_pose())
+    goal = env.goal
+    rotation = min(quaternion_angle(pose[3:], goal[3:]), quaternion_angle(pose[3:], quat_multiply(goal[3:], YAW_FLIP)))
+    return float(np.linalg.norm(pose[:3] - goal[:3])), rotation
+
+
+class InsertTask(Task):
+    """Seat the held block on its goal."""
+
+    goal = True
+
+    def reset(self, env, rng) -> None:
+        block_type = int(rng.choice(env.config.object_types))
+        name = block_name(block_type)
+        env.objects.park(env.context)
+        layers = int(rng.integers(1, 4))
+        env.objects.set_pose(env.context, f"plate_{layers}",
+                             RigidTransform([*PLATE_XY, BASEPLATE_TOP]), frozen=True)
+        yaw = float(rng.choice([0.0, np.pi / 2]))
+        nx, ny = BLOCK_SPECS[block_type].cells
+        span = (ny, nx) if yaw else (nx, ny)
+        cell = (int(rng.integers(0, PLATE_CELLS - span[0] + 1)), int(rng.integers(0, PLATE_CELLS - span[1] + 1)))
+        env.set_target(name, goal_pose(block_type, layers, cell, yaw))
+        scripted_pickup(env, name, yaw_jitter=0.1, rng=rng)
+
+    def reward_terms(self, env, action):
+        position, rotation = goal_errors(env)
+        return goal_reward(self.config.reward, position, rotation, env.fingertip_distance(), action,
+                           env.hand_torque())
+
+    def is_success(self, env) -> bool:
+        position, rotation = goal_errors(env)
+        return position < self.config.success_threshold[0] and rotation < self.config.success_threshold[1]
