@@ -21,6 +21,8 @@ from seqdex_drake.systems.osc import AddOperationalSpaceController, OperationalS
 SCENARIO = "building_blocks/grasp"
 MAX_TILT_DEG = 15.0
 """Largest deviation (deg) of the palm from its held orientation during an approach."""
+MAX_DIP = 0.02
+"""Largest overshoot (m) of the controlled point below the hover point."""
 
 
 class Rig:
@@ -151,6 +153,7 @@ def test_reaches_20_random_targets_within_2s_and_limits(rig):
         assert (s["handover_error"] <= params.hover_tolerance + 1e-9
                 or s["handover_target_distance"] <= params.handover_distance + 1e-9), where
         assert s["final_tilt"] < np.radians(2.0) and s["max_tilt"] < np.radians(MAX_TILT_DEG), where
+        assert s["max_dip"] < MAX_DIP, where  # Never closer than 3 cm above the target.
 
 
 def test_unreachable_target_saturates_within_limits(rig):

@@ -16,6 +16,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, p_PalmHc_Palm, scale_action_to_limits
+from seqdex_drake.envs.randomization import DomainRandomizer
 from seqdex_drake.robots.arm_ik import PalmIK
 from seqdex_drake.scenario import LoadScenario
 from seqdex_drake.scene.objects import SceneObjects
@@ -86,6 +87,7 @@ class SubtaskEnv(gym.Env):
         self._arm_target = np.asarray(self.scenario.robot.arm_home, dtype=float)
         self._hand_target = np.array(ALLEGRO_OPEN_Q)
         self._previous_action = np.zeros(ACTION_SIZE)
+        self.randomizer = DomainRandomizer(self, self.config.randomization)  # DR hook (envs/randomization.py)
 
     # ------------------------------------------------------------------------------------------- state
     @property
@@ -181,9 +183,11 @@ class SubtaskEnv(gym.Env):
             self.set_state(initial_state)
         else:
             self.task.reset(self, self.np_random)
+        # DR hook: physical parameters, pose noise, correlated noise (no-op with every group off).
+        self.randomizer.on_reset(self.np_random, reseed=seed is not None, task_reset=initial_state is None)
         self.simulator.Initialize()
         self._steps = 0
-        return self.observation(), {"success": bool(self.task.is_success(self))}
+        return self.randomizer.perturb_observation(self.observation()), {"success": bool(self.task.is_success(self))}
 
     def step(self, action):
         action = np.asarray(action, dtype=float)
@@ -191,7 +195,7 @@ class SubtaskEnv(gym.Env):
             raise ValueError(f"action must have shape ({ACTION_SIZE},), got {action.shape}")
         if not np.all(np.isfinite(action)):
             return self.observation(), 0.0, False, True, {"nan_action": True, "success": False}
-        action = np.clip(action, -1.0, 1.0)
+        action = np.clip(self.randomizer.perturb_action(action), -1.0, 1.0)  # DR hook: action noise
         ema = self.config.ema
         self._hand_target = ema * scale_action_to_limits(action[:16]) + (1 - ema) * self._hand_target
         p_WC = self.ik.palm_pose(self.arm_q()).translation() + self.config.wrist_step * action[16:]
@@ -201,6 +205,7 @@ class SubtaskEnv(gym.Env):
         try:
             self.simulator.AdvanceTo(self.context.get_time() + self.scenario.control_period)
             self.objects.update(self.context)
+            self.randomizer.on_step()  # DR hook: re-applies object masses, re-draws every N plant steps
             observation = self.observation()
         except RuntimeError as error:  # A failed contact solve, NaN state, ...: a truncation.
             info.update(simulator_error=True, error=str(error), success=False)
@@ -214,4 +219,5 @@ class SubtaskEnv(gym.Env):
         info["success"] = bool(self.task.is_success(self))
         terminated = bool(self.task.is_failure(self))
         truncated = self._steps >= self.config.episode_length
+        observation = self.randomizer.perturb_observation(observation)  # DR hook: observation noise
         return observation, float(sum(terms.values())), terminated, truncated, info

@@ -37,6 +37,10 @@ from gymnasium.vector.utils import batch_space
 
 from seqdex_drake.tasks.base import TaskConfig
 
+#: Modules the forkserver imports once, so that each worker forks with Drake and the env code loaded (about
+#: 0.4 s instead of 1.5 s per worker start). Only takes effect if the forkserver is not yet running.
+FORKSERVER_PRELOAD = ["__main__", "seqdex_drake.envs.subtask_env", "seqdex_drake.tasks.registry"]
+
 
 class WorkerError(RuntimeError):
     """A worker process raised, died or stopped answering.
@@ -136,6 +140,8 @@ class ProcessVectorEnv:
         self._reset_once = False
         self._remotes, self._processes = [], []
         context = mp.get_context(start_method)
+        if start_method == "forkserver":
+            context.set_forkserver_preload(FORKSERVER_PRELOAD)
         try:
             for index in range(num_envs):
                 remote, worker_remote = context.Pipe()

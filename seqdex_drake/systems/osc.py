@@ -68,7 +68,7 @@ class OscParams:
     """After a handover the approach restarts only when the target is farther than this (m) from the hand."""
     position_kp: float = 200.0
     """Task-space stiffness (1/s^2) toward the hover point."""
-    position_kd: float = 30.0
+    position_kd: float = 36.0
     """Task-space damping (1/s); the commanded speed is (kp / kd) * error, capped at ``max_speed``."""
     orientation_kp: float = 120.0
     """Stiffness (1/s^2) toward the held orientation."""

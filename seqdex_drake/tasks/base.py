@@ -9,6 +9,7 @@ import dataclasses
 
 import numpy as np
 
+from seqdex_drake.envs.randomization import RandomizationConfig
 from seqdex_drake.tasks.rewards import RewardWeights
 
 
@@ -36,6 +37,9 @@ class TaskConfig:
     """Task-specific success thresholds (documented by each task's default_config)."""
     drop_height: float = 0.45
     """An object whose centre falls below this height (m) has left the table: task failure (terminated)."""
+    randomization: RandomizationConfig = dataclasses.field(default_factory=RandomizationConfig)
+    """Domain randomization (``envs/randomization.py``). Default: every group off, so resets and rewards are
+    exactly reproducible; train with ``RandomizationConfig.paper()`` (the paper's table, all on)."""
 
 
 class Task(abc.ABC):

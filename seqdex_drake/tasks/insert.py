@@ -14,7 +14,7 @@ from seqdex_drake.modeling.blocks import BLOCK_SPECS, STUD_PITCH
 from seqdex_drake.systems.observations import pose_vector, quat_multiply
 from seqdex_drake.tasks.base import Task, TaskConfig
 from seqdex_drake.tasks.blocks_common import block_name
-from seqdex_drake.tasks.handoff import scripted_pickup
+from seqdex_drake.tasks.handoff import scripted_block_pickup
 from seqdex_drake.tasks.rewards import RewardWeights, goal_reward, quaternion_angle
 
 #: The 4x4 plates stand stud-aligned on the baseplate (baseplate top at z = 0.618).
@@ -68,7 +68,7 @@ class InsertTask(Task):
         span = (ny, nx) if yaw else (nx, ny)
         cell = (int(rng.integers(0, PLATE_CELLS - span[0] + 1)), int(rng.integers(0, PLATE_CELLS - span[1] + 1)))
         env.set_target(name, goal_pose(block_type, layers, cell, yaw))
-        scripted_pickup(env, name, yaw_jitter=0.1, rng=rng)
+        scripted_block_pickup(env, name, yaw_jitter=0.1, rng=rng)
 
     def reward_terms(self, env, action):
         position, rotation = goal_errors(env)

@@ -1,0 +1,143 @@
+"""Environment throughput: env steps/s against the raw simulator, and the process vector env with 1 and 2 workers.
+
+Single process, per registered sub-task: the env is reset (seed 0), stepped a few times with zero actions, and its
+state saved. From that state, ``env_steps_per_s`` times ``SubtaskEnv.step`` with zero actions (IK, observation,
+reward terms, wake check) for about ``--seconds``; then, from the same state, ``raw_steps_per_s`` times the same
+number of control periods with ``env.simulator.AdvanceTo`` alone, one call per period, the last targets held (no
+env code). Zero actions keep the targets where the warm-up left them, so both runs simulate nearly the same motion.
+The two alternate ``--repeats`` times and the best of each is kept (other processes may load the CPU).
+
+Vector env (grasp, or every sub-task with ``--all``): ``ProcessVectorEnv`` with 1 and 2 workers, alternating,
+``--vector-steps`` vector steps of zero actions each (automatic resets included); steps/s counts env steps
+(workers x vector steps). ``inprocess_steps_per_s`` is a plain env stepped the same way in this process.
+
+The last line is one JSON object; ``env_over_raw_min`` is the smallest env/raw ratio over the sub-tasks measured
+(goal >= 0.90), ``two_worker_speedup`` the 2-worker over the 1-worker rate for grasp (goal >= 1.8 on 2 cores), and
+``failed`` maps a sub-task whose env could not be built or stepped to its error (it is left out of the minimum).
+
+    python benchmarks/env_throughput.py [--seconds 3] [--repeats 3] [--vector-steps 300] [--all] [--test]
+"""
+
+import argparse
+import json
+import os
+import time
+
+import numpy as np
+
+from seqdex_drake.envs.vector import ProcessVectorEnv
+from seqdex_drake.tasks.registry import make_env, task_names
+
+WARMUP_STEPS = 5
+
+
+def _time_env(env, state, seconds: float, max_steps: int) -> tuple[int, float]:
+    """Steps with zero actions from ``state`` for about ``seconds``; returns (steps, elapsed s)."""
+    env.reset(options={"initial_state": state})
+    action, steps = np.zeros(env.action_space.shape), 0
+    start = time.perf_counter()
+    while steps < max_steps and (steps == 0 or time.perf_counter() - start < seconds):
+        env.step(action)
+        steps += 1
+    return steps, time.perf_counter() - start
+
+
+def _time_raw(env, state, steps: int) -> float:
+    """Elapsed s for ``steps`` control periods of ``Simulator.AdvanceTo`` alone, from ``state``."""
+    env.reset(options={"initial_state": state})
+    t0, period = env.context.get_time(), env.scenario.control_period
+    start = time.perf_counter()
+    for k in range(1, steps + 1):
+        env.simulator.AdvanceTo(t0 + k * period)
+    return time.perf_counter() - start
+
+
+def single_process(name: str, seconds: float, repeats: int) -> dict:
+    """Best-of-``repeats`` env and raw step rates of sub-task ``name`` in this process."""
+    env = make_env(name)
+    env.reset(seed=0)
+    for _ in range(WARMUP_STEPS):
+        env.step(np.zeros(env.action_space.shape))
+    state = env.get_state()
+    max_steps = env.config.episode_length - 1  # Stay inside one episode (no truncation).
+    env_rate = raw_rate = 0.0
+    for _ in range(repeats):
+        steps, elapsed = _time_env(env, state, seconds, max_steps)
+        env_rate = max(env_rate, steps / elapsed)
+        raw_rate = max(raw_rate, steps / _time_raw(env, state, steps))
+    return {"env_steps_per_s": round(env_rate, 1), "raw_steps_per_s": round(raw_rate, 1),
+            "env_over_raw": round(env_rate / raw_rate, 3), "steps": steps}
+
+
+def _time_vector(vector_env: ProcessVectorEnv, steps: int) -> float:
+    actions = np.zeros((vector_env.num_envs, 19))
+    start = time.perf_counter()
+    for _ in range(steps):
+        vector_env.step(actions)
+    return vector_env.num_envs * steps / (time.perf_counter() - start)
+
+
+def vector(name: str, steps: int, repeats: int) -> dict:
+    """Best-of-``repeats`` env steps/s with 1 and 2 workers (measured alternately) and in this process."""
+    env = make_env(name)
+    env.reset(seed=0)
+    start = time.perf_counter()
+    for _ in range(steps):
+        _, _, terminated, truncated, _ = env.step(np.zeros(19))
+        if terminated or truncated:
+            env.reset()
+    inprocess = steps / (time.perf_counter() - start)
+    rates = {1: 0.0, 2: 0.0}
+    start = time.perf_counter()
+    with ProcessVectorEnv(name, 1, seed=0) as one, ProcessVectorEnv(name, 2, seed=0) as two:
+        startup = time.perf_counter() - start
+        for vector_env in (one, two):
+            vector_env.reset()
+            _time_vector(vector_env, WARMUP_STEPS)
+        for _ in range(repeats):
+            for workers, vector_env in ((1, one), (2, two)):
+                rates[workers] = max(rates[workers], _time_vector(vector_env, steps))
+    return {"inprocess_steps_per_s": round(inprocess, 1), "workers_1_steps_per_s": round(rates[1], 1),
+            "workers_2_steps_per_s": round(rates[2], 1), "two_worker_speedup": round(rates[2] / rates[1], 3),
+            "startup_s_3_workers": round(startup, 2), "vector_steps": steps}
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seconds", type=float, default=3.0, help="seconds per single-process env measurement")
+    parser.add_argument("--repeats", type=int, default=3, help="alternating repeats; the best is kept")
+    parser.add_argument("--vector-steps", type=int, default=300, help="vector steps per vector measurement")
+    parser.add_argument("--tasks", nargs="*", default=None, help="sub-tasks for the single-process part")
+    parser.add_argument("--all", action="store_true", help="vector part for every sub-task, not only grasp")
+    parser.add_argument("--test", action="store_true", help="a tiny run (a few steps per measurement)")
+    args = parser.parse_args(argv)
+    if args.test:
+        args.seconds, args.repeats, args.vector_steps = 0.05, 1, 5
+    names = args.tasks or task_names()
+    load_before = os.getloadavg()
+    single, failed = {}, {}
+    for name in names:
+        try:
+            single[name] = single_process(name, args.seconds, args.repeats)
+        except Exception as error:  # noqa: BLE001 - a broken sub-task is reported, the others still measured.
+            failed[name] = f"{type(error).__name__}: {error}"
+            print(f"{name:14s} FAILED {failed[name]}", flush=True)
+            continue
+        print(f"{name:14s} single process {single[name]}", flush=True)
+    vector_names = list(single) if args.all else ["grasp"]
+    vectors = {}
+    for name in vector_names:
+        vectors[name] = vector(name, args.vector_steps, args.repeats)
+        print(f"{name:14s} vector env     {vectors[name]}", flush=True)
+    summary = {
+        "env_over_raw_min": min((result["env_over_raw"] for result in single.values()), default=None),
+        "two_worker_speedup": vectors.get("grasp", next(iter(vectors.values())))["two_worker_speedup"],
+        "single_process": single, "vector": vectors, "failed": failed, "cpu_count": os.cpu_count(),
+        "load_average_1min_before_after": [round(load_before[0], 2), round(os.getloadavg()[0], 2)],
+        "args": vars(args),
+    }
+    print(json.dumps(summary))
+
+
+if __name__ == "__main__":
+    main()

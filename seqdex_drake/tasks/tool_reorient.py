@@ -1,0 +1,51 @@
+"""Tool Reorient (Tool Positioning): turn the held tool to its ready-to-use pose, head facing down.
+
+Reset: a hand-off state from tool Grasp (``options={"initial_state": ...}``), or standalone the hammer
+settled in a synthesized tripod grasp of its handle (``tasks/handoff.py``). Goal: the start pose flipped
+180 deg about the tool's long axis y (FACTS.md), at the same place. Observation: base + goal (173).
+Reward: the paper's In-hand Orientation formula. Success: orientation error below 0.5 rad (FACTS.md).
+"""
+
+from pydrake.math import RigidTransform, RotationMatrix
+
+from seqdex_drake.systems.observations import pose_vector
+from seqdex_drake.tasks.base import Task, TaskConfig
+from seqdex_drake.tasks.handoff import synthesized_tool_grasp
+from seqdex_drake.tasks.rewards import RewardWeights, goal_reward, quaternion_angle
+from seqdex_drake.tasks.tools_common import tool_name
+
+
+def default_config() -> TaskConfig:
+    return TaskConfig(
+        name="tool_reorient", scenario="tool_positioning/tool_reorient", episode_length=125, ema=1.0,
+        object_types=[0], reward=RewardWeights(progress=1.0, fingertip=0.0, action=-0.001, torque=-0.003,
+                                               alpha0=20.0, alpha1=1.0, e0=0.06),
+        success_threshold=[0.5])  # [orientation error (rad)]
+
+
+def goal_errors(env) -> tuple[float, float]:
+    pose = pose_vector(env.object_pose())
+    return float(((pose[:3] - env.goal[:3]) ** 2).sum() ** 0.5), quaternion_angle(pose[3:], env.goal[3:])
+
+
+class ToolReorientTask(Task):
+    """Flip a held tool head-down."""
+
+    goal = True
+
+    def reset(self, env, rng) -> None:
+        name = tool_name(int(rng.choice(env.config.object_types)))
+        env.objects.park(env.context)
+        env.set_target(name)
+        synthesized_tool_grasp(env, name)
+        X_WT = env.object_pose()
+        goal = RigidTransform(X_WT.rotation() @ RotationMatrix.MakeYRotation(3.141592653589793), X_WT.translation())
+        env.set_target(name, pose_vector(goal))
+
+    def reward_terms(self, env, action):
+        position, rotation = goal_errors(env)
+        return goal_reward(self.config.reward, position, rotation, env.fingertip_distance(), action,
+                           env.hand_torque())
+
+    def is_success(self, env) -> bool:
+        return goal_errors(env)[1] < self.config.success_threshold[0]
