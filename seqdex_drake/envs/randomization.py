@@ -16,15 +16,19 @@ object scale       ``SceneGraph.ChangeShape(sg_context, ...)`` on every geometry
                    centre of mass scales by s and the unit inertia by s^2 (``SetSpatialInertiaInBodyFrame``);
                    the mass is the mass item's. ChangeShape drops the context's collision filters of the geometry,
                    so the freezer's filters are re-declared (``SceneObjects.get_state``/``set_state``).
-PD stiffness and   ``JointActuator.set_controller_gains(plant_context, PdControllerGains)`` (kp, kd) and
+PD stiffness and   ``JointActuator.set_controller_gains(PdControllerGains)`` (kp, kd) and
 damping            ``Joint.SetDampingVector(plant_context, ...)`` (viscous damping, same factor as kd).
-joint limits       ``Joint.set_position_limits``: model data, not a context parameter, in Drake 1.51; each
-                   SubtaskEnv owns its plant, so this is per environment. It takes effect in the next step.
-gravity            ``plant.mutable_gravity_field().set_gravity_vector``: model data too, per environment. The
-                   Franka's gravity compensation (InverseDynamics on this plant) sees it; it uses nominal masses.
+joint limits       ``Joint.set_position_limits``.
+gravity            ``plant.mutable_gravity_field().set_gravity_vector``. The Franka's gravity compensation
+                   (InverseDynamics on this plant) sees it, but with nominal masses (its own default context).
 pose noise         the target object's pose at a task reset, then lifted out of any penetration.
 obs/action noise   additive Gaussian: correlated (drawn per episode) + uncorrelated (per step).
 =================  ===========================================================================================
+
+PD gains, joint limits and gravity are model data, not context parameters, in Drake 1.51 (the gains are a
+``JointActuator`` member read by the discrete solver each step; pydrake binds no context overload). Each
+SubtaskEnv builds its own plant, so they are still per environment, and take effect from the next step.
+(A plant shared by several contexts would share them.)
 
 Physical parameters are re-drawn when ``resample_every_sim_steps`` plant steps (2 ms) have passed: mid-episode
 all but the object scale (a geometry jump in contact would be an impulse); the scale at the next reset.
@@ -256,7 +260,7 @@ class DomainRandomizer:
             if sample.kp_scale is not None or sample.damping_scale is not None:
                 kp_f = 1.0 if sample.kp_scale is None else sample.kp_scale[k]
                 kd_f = 1.0 if sample.damping_scale is None else sample.damping_scale[k]
-                actuator.set_controller_gains(plant_context, PdControllerGains(p=kp * kp_f, d=kd * kd_f))
+                actuator.set_controller_gains(PdControllerGains(p=kp * kp_f, d=kd * kd_f))
             if sample.damping_scale is not None:
                 joint.SetDampingVector(plant_context, self.nominal_damping[k] * sample.damping_scale[k])
             if sample.lower_offset is not None:
@@ -285,7 +289,8 @@ class DomainRandomizer:
                 self.scene_graph.ChangeShape(sg_context, self.source_id, g, _scaled_shape(inspector.GetShape(g), s),
                                              RigidTransform(X.rotation(), X.translation() * s))
             M0 = body.default_spatial_inertia()
-            G = UnitInertia(M0.get_unit_inertia().get_moments() * s**2, M0.get_unit_inertia().get_products() * s**2)
+            G0 = M0.get_unit_inertia()
+            G = UnitInertia(*(G0.get_moments() * s**2), *(G0.get_products() * s**2))
             body.SetSpatialInertiaInBodyFrame(plant_context, SpatialInertia(M0.get_mass(), M0.get_com() * s, G))
         objects.set_state(root, state)  # ChangeShape dropped the geometries' freeze filters: declare them again.
 

@@ -175,7 +175,13 @@ class SceneObjects:
         # Fast now or at the last check: an impact is over (slow again) by the end of the step it happens in.
         moving = (~frozen) & (np.maximum(speed, self._last_speed) > config.wake_speed)
         self._last_speed = speed
-        wake = frozen & (near_hand | self._touched(plant_context, frozen, moving)) if frozen.any() else frozen
+        wake = frozen & near_hand
+        # Contact results cost a contact computation: evaluate them only when some frozen object is within
+        # reach (the hand spans ~0.25 m; a moving block, its own size) of something that could touch it.
+        reach = np.min(np.linalg.norm(p_WO[:, None, :] - np.vstack([hand, p_WO[moving]])[None, :, :], axis=2),
+                       axis=1) < 0.2
+        if (frozen & reach & ~wake).any():
+            wake |= frozen & self._touched(plant_context, frozen, moving)
         still = (~frozen) & (speed < config.sleep_speed) & ~near_hand
         self._still_ticks = np.where(still, self._still_ticks + 1, 0)
         sleep = self._still_ticks >= config.sleep_ticks if config.enabled and config.sleep_ticks > 0 else still & False
