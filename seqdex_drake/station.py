@@ -26,8 +26,16 @@ import fnmatch
 
 import numpy as np
 from pydrake.common.eigen_geometry import AngleAxis
-from pydrake.geometry import MakeRenderEngineVtk, RenderEngineVtkParams, SceneGraph
+from pydrake.geometry import (
+    MakeRenderEngineVtk,
+    MeshcatVisualizer,
+    MeshcatVisualizerParams,
+    RenderEngineVtkParams,
+    Role,
+    SceneGraph,
+)
 from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.multibody.meshcat import ContactVisualizer, ContactVisualizerParams
 from pydrake.multibody.parsing import (
     LoadModelDirectives,
     ModelDirective,
@@ -41,7 +49,7 @@ from pydrake.systems.controllers import InverseDynamics
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import MatrixGain
 from pydrake.systems.sensors import CameraConfig, RgbdSensor
-from pydrake.visualization import ApplyVisualizationConfig
+from pydrake.visualization import VisualizationConfig
 
 from seqdex_drake.robots.allegro import ALLEGRO_JOINT_NAMES, ALLEGRO_OPEN_Q
 from seqdex_drake.robots.franka import FRANKA_JOINT_NAMES
@@ -222,6 +230,27 @@ def AddCamera(builder: DiagramBuilder, plant: MultibodyPlant, scene_graph: Scene
     return sensor
 
 
+def AddMeshcatVisualization(builder: DiagramBuilder, plant: MultibodyPlant, scene_graph: SceneGraph, meshcat,
+                            config: VisualizationConfig) -> None:
+    """Meshcat visualizers per ``config`` (illustration, proximity, contacts), without any LCM traffic.
+
+    ``pydrake.visualization.ApplyVisualizationConfig`` would also publish LCM (UDP multicast) messages for
+    drake-visualizer; the station only talks to the Meshcat given.
+    """
+    if config.publish_illustration:
+        MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, MeshcatVisualizerParams(
+            role=Role.kIllustration, publish_period=config.publish_period, prefix="illustration",
+            delete_on_initialization_event=config.delete_on_initialization_event))
+    if config.publish_proximity:
+        MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, MeshcatVisualizerParams(
+            role=Role.kProximity, publish_period=config.publish_period, prefix="proximity",
+            default_color=config.default_proximity_color, initial_alpha=config.initial_proximity_alpha,
+            visible_by_default=False, delete_on_initialization_event=config.delete_on_initialization_event))
+    if config.publish_contacts:
+        ContactVisualizer.AddToBuilder(builder, plant, meshcat, ContactVisualizerParams(
+            publish_period=config.publish_period, delete_on_initialization_event=config.delete_on_initialization_event))
+
+
 def MakeStation(scenario: Scenario, meshcat=None) -> Diagram:
     """Builds the station Diagram for ``scenario`` (see the module docstring for its ports).
 
@@ -257,7 +286,7 @@ def MakeStation(scenario: Scenario, meshcat=None) -> Diagram:
     builder.ExportOutput(scene_graph.get_query_output_port(), "query_object")
 
     if meshcat is not None:
-        ApplyVisualizationConfig(scenario.visualization, builder, meshcat=meshcat)
+        AddMeshcatVisualization(builder, plant, scene_graph, meshcat, scenario.visualization)
 
     diagram = builder.Build()
     diagram.set_name(f"station_{scenario.task_family}_{scenario.subtask}".rstrip("_"))
