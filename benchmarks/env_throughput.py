@@ -10,6 +10,8 @@ The two alternate ``--repeats`` times and the best of each is kept (other proces
 Vector env (grasp, or every sub-task with ``--all``): ``ProcessVectorEnv`` with 1 and 2 workers, alternating,
 ``--vector-steps`` vector steps of zero actions each (automatic resets included); steps/s counts env steps
 (workers x vector steps). ``inprocess_steps_per_s`` is a plain env stepped the same way in this process.
+``other_processes_busy_cores`` is how many cores other processes kept busy during each kept measurement (from
+/proc): a 2-worker speedup on 2 cores is only meaningful when it is near 0.
 
 The last line is one JSON object; ``env_over_raw_min`` is the smallest env/raw ratio over the sub-tasks measured
 (goal >= 0.90), ``two_worker_speedup`` the 2-worker over the 1-worker rate for grasp (goal >= 1.8 on 2 cores), and
@@ -69,12 +71,33 @@ def single_process(name: str, seconds: float, repeats: int) -> dict:
             "env_over_raw": round(env_rate / raw_rate, 3), "steps": steps}
 
 
-def _time_vector(vector_env: ProcessVectorEnv, steps: int) -> float:
+def _cpu_seconds(pids: list[int]) -> tuple[float, float] | None:
+    """(CPU seconds busy on the whole machine, CPU seconds used by ``pids``) from /proc; None where unavailable."""
+    try:
+        with open("/proc/stat") as stat:
+            fields = [int(x) for x in stat.readline().split()[1:9]]
+        busy = sum(fields) - fields[3] - fields[4]  # All but idle and iowait.
+        own = 0
+        for pid in pids:
+            with open(f"/proc/{pid}/stat") as stat:
+                own += sum(int(x) for x in stat.read().rsplit(")", 1)[1].split()[11:13])  # utime, stime.
+    except (OSError, ValueError):
+        return None
+    ticks = os.sysconf("SC_CLK_TCK")
+    return busy / ticks, own / ticks
+
+
+def _time_vector(vector_env: ProcessVectorEnv, steps: int) -> tuple[float, float | None]:
+    """(env steps/s, cores kept busy by other processes meanwhile) over ``steps`` vector steps of zero actions."""
     actions = np.zeros((vector_env.num_envs, 19))
-    start = time.perf_counter()
+    pids = [os.getpid(), *vector_env.pids]
+    before, start = _cpu_seconds(pids), time.perf_counter()
     for _ in range(steps):
         vector_env.step(actions)
-    return vector_env.num_envs * steps / (time.perf_counter() - start)
+    elapsed, after = time.perf_counter() - start, _cpu_seconds(pids)
+    others = None if before is None or after is None else max(
+        0.0, ((after[0] - before[0]) - (after[1] - before[1])) / elapsed)
+    return vector_env.num_envs * steps / elapsed, others
 
 
 def vector(name: str, steps: int, repeats: int) -> dict:
@@ -87,7 +110,7 @@ def vector(name: str, steps: int, repeats: int) -> dict:
         if terminated or truncated:
             env.reset()
     inprocess = steps / (time.perf_counter() - start)
-    rates = {1: 0.0, 2: 0.0}
+    rates, others = {1: 0.0, 2: 0.0}, {1: None, 2: None}
     start = time.perf_counter()
     with ProcessVectorEnv(name, 1, seed=0) as one, ProcessVectorEnv(name, 2, seed=0) as two:
         startup = time.perf_counter() - start
@@ -96,10 +119,13 @@ def vector(name: str, steps: int, repeats: int) -> dict:
             _time_vector(vector_env, WARMUP_STEPS)
         for _ in range(repeats):
             for workers, vector_env in ((1, one), (2, two)):
-                rates[workers] = max(rates[workers], _time_vector(vector_env, steps))
+                rate, other_load = _time_vector(vector_env, steps)
+                if rate > rates[workers]:
+                    rates[workers], others[workers] = rate, other_load
     return {"inprocess_steps_per_s": round(inprocess, 1), "workers_1_steps_per_s": round(rates[1], 1),
             "workers_2_steps_per_s": round(rates[2], 1), "two_worker_speedup": round(rates[2] / rates[1], 3),
-            "startup_s_3_workers": round(startup, 2), "vector_steps": steps}
+            "startup_s_3_workers": round(startup, 2), "vector_steps": steps,
+            "other_processes_busy_cores": {w: None if v is None else round(v, 2) for w, v in others.items()}}
 
 
 def main(argv=None):

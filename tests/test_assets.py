@@ -180,8 +180,8 @@ def test_fixture_frames():
     np.testing.assert_allclose(top_size, [1.5, 1.0, 0.05])
     assert top_center[2] + top_size[2] / 2 == pytest.approx(0.0)  # Table top at z = 0.
     box = _collision_boxes(fixtures.fixture_sdf_url("box"))
-    floor_size, floor_center = box["floor"]
-    assert floor_center[2] + floor_size[2] / 2 == pytest.approx(0.0)  # Inner floor at z = 0.
+    assert "floor" not in box  # The table top is the box's floor (a coplanar floor would double contacts).
+    assert box["wall_pos_x"][1][2] - box["wall_pos_x"][0][2] / 2 == pytest.approx(-0.01)  # Walls reach the table.
     wall_size, wall_center = box["wall_pos_x"]
     assert wall_center[0] - wall_size[0] / 2 == pytest.approx(0.30)  # Inner footprint 0.60 x 0.416.
     assert wall_center[2] + wall_size[2] / 2 == pytest.approx(0.165)

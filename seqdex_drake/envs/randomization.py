@@ -21,7 +21,9 @@ damping            ``Joint.SetDampingVector(plant_context, ...)`` (viscous dampi
 joint limits       ``Joint.set_position_limits``.
 gravity            ``plant.mutable_gravity_field().set_gravity_vector``. The Franka's gravity compensation
                    (InverseDynamics on this plant) sees it, but with nominal masses (its own default context).
-pose noise         the target object's pose at a task reset, then lifted out of any penetration.
+pose noise         the target's pose after ``Task.reset`` (position, rotation vector about the centre of mass),
+                   lifted out of the floor; skipped in a pile or in hand (``DomainRandomizer.apply_pose_noise``).
+                   Tasks record their start state (Orient's start rotation) before it: the resting pose.
 obs/action noise   additive Gaussian: correlated (drawn per episode) + uncorrelated (per step).
 =================  ===========================================================================================
 
@@ -62,7 +64,12 @@ class RandomizationConfig:
     """
 
     robot_mass: bool = False
-    """Scale each Franka / Allegro body's mass."""
+    """Scale the mass of each body of the ``robot_mass_instances``."""
+    robot_mass_instances: list[str] = dataclasses.field(default_factory=lambda: ["allegro"])
+    """Model instances whose bodies' masses are randomized. The release's robot has gravity disabled, so its mass
+    randomization changes inertia only; here the Franka is held up by gravity compensation computed with nominal
+    masses, so scaling its links becomes a compensation error (0.5x: the palm drifts ~13 cm/s). Hence the Allegro
+    only by default; add ``"franka"`` to include the arm."""
     robot_mass_range: list[float] = dataclasses.field(default_factory=lambda: [0.5, 1.5])
     """Uniform range of the robot mass factor."""
     robot_friction: bool = False
@@ -198,17 +205,19 @@ class DomainRandomizer:
         self.nominal_damping = [j.default_damping_vector() for j in self.joints]
         self.nominal_limits = [(j.position_lower_limits(), j.position_upper_limits()) for j in self.joints]
         self.nominal_gravity = np.array(plant.gravity_field().gravity_vector())
-        self.robot_mass0 = np.array([b.default_mass() for b in self.robot_bodies])
+        mass_instances = [plant.GetModelInstanceByName(name) for name in config.robot_mass_instances]
+        self.robot_mass_bodies = [b for b in self.robot_bodies if b.model_instance() in mass_instances]
+        self.robot_mass0 = np.array([b.default_mass() for b in self.robot_mass_bodies])
         self.object_mass0 = np.array([b.default_mass() for b in env.objects.bodies])
         inspector = self.scene_graph.model_inspector()
         self.robot_geometries = [plant.GetCollisionGeometriesForBody(b) for b in self.robot_bodies]
+        self.robot_geometry_set = {g for gs in self.robot_geometries for g in gs}
         self.object_geometries = [plant.GetCollisionGeometriesForBody(b) for b in env.objects.bodies]
         self.nominal_proximity = {g: ProximityProperties(inspector.GetProximityProperties(g))
                                   for gs in self.robot_geometries + self.object_geometries for g in gs}
         self.object_all_geometries = [inspector.GetGeometries(plant.GetBodyFrameIdOrThrow(b.index()))
                                       for b in env.objects.bodies]
         self.object_mass_factor = np.ones(len(env.objects.bodies))
-        self.robot_mass_factor = np.ones(len(self.robot_bodies))
         self.sample: PhysicalSample | None = None
         self._physical: RandomGenerator | None = None
         self._episode = RandomGenerator(0)
@@ -218,21 +227,23 @@ class DomainRandomizer:
     # --------------------------------------------------------------------------------------- sampling
     def sample_physical(self, generator: RandomGenerator) -> PhysicalSample:
         """Draws every enabled physical parameter (disabled groups: None)."""
-        c, nr, na, no = self.config, len(self.robot_bodies), len(self.actuators), len(self.env.objects.bodies)
+        c, na, no = self.config, len(self.actuators), len(self.env.objects.bodies)
+        nm, nr = len(self.robot_mass_bodies), len(self.robot_bodies)
 
         def draw(group, sampler, *args):
             return sampler(generator, *args) if getattr(c, group) else None
 
         return PhysicalSample(
-            draw("robot_mass", _uniform, c.robot_mass_range, nr), draw("robot_friction", _uniform,
-                                                                        c.robot_friction_range, nr),
-            draw("joint_limits", _gaussian, c.joint_limit_std, na), draw("joint_limits", _gaussian,
-                                                                          c.joint_limit_std, na),
-            draw("joint_stiffness", _loguniform, c.joint_stiffness_range, na),
-            draw("joint_damping", _loguniform, c.joint_damping_range, na),
-            draw("object_mass", _uniform, c.object_mass_range, no), draw("object_friction", _uniform,
-                                                                          c.object_friction_range, no),
-            draw("object_scale", _uniform, c.object_scale_range, no), draw("gravity", _gaussian, c.gravity_std, 3))
+            robot_mass=draw("robot_mass", _uniform, c.robot_mass_range, nm),
+            robot_friction=draw("robot_friction", _uniform, c.robot_friction_range, nr),
+            lower_offset=draw("joint_limits", _gaussian, c.joint_limit_std, na),
+            upper_offset=draw("joint_limits", _gaussian, c.joint_limit_std, na),
+            kp_scale=draw("joint_stiffness", _loguniform, c.joint_stiffness_range, na),
+            damping_scale=draw("joint_damping", _loguniform, c.joint_damping_range, na),
+            object_mass=draw("object_mass", _uniform, c.object_mass_range, no),
+            object_friction=draw("object_friction", _uniform, c.object_friction_range, no),
+            object_scale=draw("object_scale", _uniform, c.object_scale_range, no),
+            gravity_offset=draw("gravity", _gaussian, c.gravity_std, 3))
 
     # -------------------------------------------------------------------------------------- applying
     def apply_physical(self, sample: PhysicalSample, include_scale: bool = True) -> None:
@@ -244,14 +255,13 @@ class DomainRandomizer:
         if include_scale and sample.object_scale is not None:
             self._apply_scale(root, plant_context, sg_context, sample.object_scale)
         if sample.robot_mass is not None:
-            self.robot_mass_factor = sample.robot_mass
-            for body, m0, f in zip(self.robot_bodies, self.robot_mass0, sample.robot_mass, strict=True):
+            for body, m0, f in zip(self.robot_mass_bodies, self.robot_mass0, sample.robot_mass, strict=True):
                 body.SetMass(plant_context, m0 * f)
         if sample.object_mass is not None:
             self.object_mass_factor = sample.object_mass
         for geometries, factors in ((self.robot_geometries, sample.robot_friction),
                                     (self.object_geometries, sample.object_friction)):
-            for body_geometries, f in zip(geometries, [] if factors is None else factors, strict=False):
+            for body_geometries, f in zip(geometries, [] if factors is None else factors, strict=factors is not None):
                 for g in body_geometries:
                     self.scene_graph.AssignRole(sg_context, self.source_id, g, self._friction(g, f),
                                                 RoleAssign.kReplace)
@@ -307,39 +317,53 @@ class DomainRandomizer:
             if body.get_mass(plant_context) != mass:
                 body.SetMass(plant_context, mass)
 
-    def apply_pose_noise(self, generator: RandomGenerator) -> bool:
-        """Perturbs the target object's pose about its centre of mass; returns False when skipped (pile)."""
+    def apply_pose_noise(self, generator: RandomGenerator, attempts: int = 5) -> bool:
+        """Perturbs the target object's pose about its centre of mass, then lifts it out of any penetration.
+
+        Skipped (returns False) when the target lies in a pile (another object within ``isolation_radius``) or
+        touches the robot (held in hand): moving it would interpenetrate its neighbours or break the grasp. A
+        draw that ends inside the robot (the open hand hovers just above) is re-drawn, ``attempts`` times at most.
+        """
         env, c = self.env, self.config
         index = env.objects.index(env.target_object)
         p_WO = env.objects.positions(env.context)[:, 4:]
-        others = np.delete(np.linalg.norm(p_WO - p_WO[index], axis=1), index)
-        if np.any(others < c.isolation_radius):
+        if np.any(np.delete(np.linalg.norm(p_WO - p_WO[index], axis=1), index) < c.isolation_radius) or \
+                self._penetration(index)[1]:
             return False
-        body, plant_context = env.object_body(), env.plant_context
         X_WB = env.object_pose()
-        p_BCm = body.CalcCenterOfMassInBodyFrame(plant_context)
-        rotation_vector = _gaussian(generator, c.object_rotation_std, 3)
-        angle = np.linalg.norm(rotation_vector)
-        R_noise = RotationMatrix() if angle == 0 else RotationMatrix(AngleAxis(angle, rotation_vector / angle))
-        R_new = R_noise @ X_WB.rotation()
-        p_WCm = X_WB @ p_BCm + _gaussian(generator, c.object_position_std, 3)
-        X_new = RigidTransform(R_new, p_WCm - R_new @ p_BCm)
-        env.objects.set_pose(env.context, env.target_object, X_new, frozen=False)
-        self._lift_out_of_penetration(index)
-        return True
+        p_BCm = env.object_body().CalcCenterOfMassInBodyFrame(env.plant_context)
+        for _ in range(attempts):
+            rotation_vector = _gaussian(generator, c.object_rotation_std, 3)
+            angle = np.linalg.norm(rotation_vector)
+            R = (RotationMatrix() if angle == 0 else RotationMatrix(AngleAxis(angle, rotation_vector / angle))) \
+                @ X_WB.rotation()
+            p_WCm = X_WB @ p_BCm + _gaussian(generator, c.object_position_std, 3)
+            env.objects.set_pose(env.context, env.target_object, RigidTransform(R, p_WCm - R @ p_BCm))
+            for _ in range(20):  # Lift out of the floor / table / walls.
+                depth, touches_robot = self._penetration(index)
+                if depth <= 0.0:
+                    break
+                X = env.object_pose()
+                env.objects.set_pose(env.context, env.target_object,
+                                     RigidTransform(X.rotation(), X.translation() + [0, 0, depth + 1e-4]))
+            if depth <= 0.0 and not touches_robot:
+                return True
+        env.objects.set_pose(env.context, env.target_object, X_WB)
+        return False
 
-    def _lift_out_of_penetration(self, index: int, iterations: int = 20) -> None:
-        env = self.env
+    def _penetration(self, index: int) -> tuple[float, bool]:
+        """Deepest penetration of object ``index`` into anything but the robot, and whether it touches the robot."""
         mine = set(self.object_geometries[index])
-        sg_context = self.scene_graph.GetMyContextFromRoot(env.context)
-        for _ in range(iterations):
-            pairs = self.scene_graph.get_query_output_port().Eval(sg_context).ComputePointPairPenetration()
-            depth = max([p.depth for p in pairs if (p.id_A in mine) != (p.id_B in mine)], default=0.0)
-            if depth <= 0.0:
-                return
-            X = env.object_pose()
-            env.objects.set_pose(env.context, env.target_object,
-                                 RigidTransform(X.rotation(), X.translation() + [0, 0, depth + 1e-4]), frozen=False)
+        query = self.scene_graph.get_query_output_port().Eval(self.scene_graph.GetMyContextFromRoot(self.env.context))
+        depth, robot = 0.0, False
+        for pair in query.ComputePointPairPenetration():
+            if (pair.id_A in mine) == (pair.id_B in mine):
+                continue
+            if pair.id_A in self.robot_geometry_set or pair.id_B in self.robot_geometry_set:
+                robot = True
+            else:
+                depth = max(depth, pair.depth)
+        return depth, robot
 
     # ------------------------------------------------------------------------------------ env hooks
     def on_reset(self, np_random: np.random.Generator, reseed: bool, task_reset: bool) -> None:

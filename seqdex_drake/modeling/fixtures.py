@@ -134,13 +134,16 @@ def _box_panels() -> list[tuple[str, tuple[float, float, float], tuple[float, fl
 
 
 def _write_box(out_dir: str) -> dict:
-    """Writes box.sdf: floor and four walls as box collisions and translucent visuals."""
+    """Writes box.sdf: translucent floor and walls; the four walls collide (the table top is the floor)."""
     panels = _box_panels()
     visuals, collisions, parts = [], [], []
     for name, size, center in panels:
         pose = center + (0.0, 0.0, 0.0)
         visuals.append(sdf_writer.Visual(name, sdf_writer.box(size), BOX_RGBA, pose))
-        collisions.append(sdf_writer.Collision(name, sdf_writer.box(size), WOOD_PROXIMITY, pose))
+        # The box stands on the table, whose top is the box's inner floor: a floor collision there would be
+        # coplanar with the table top and double every resting contact, so only the walls collide.
+        if name != "floor":
+            collisions.append(sdf_writer.Collision(name, sdf_writer.box(size), WOOD_PROXIMITY, pose))
     # The floor spans the full outer footprint; the walls stand on top of its edges, so no volume overlaps.
     for name, size, center in panels:
         height = size[2] - (BOX_FLOOR_THICKNESS if name != "floor" else 0.0)
