@@ -161,3 +161,5 @@ def test_close_is_idempotent_and_usable_as_a_context_manager():
         vector_env.reset()
     with pytest.raises(ValueError, match="num_envs"):
         ProcessVectorEnv(TASK, 0)
+    with pytest.raises(ValueError, match="valid tasks: search"):
+        ProcessVectorEnv("dance", 1)

@@ -36,6 +36,7 @@ import numpy as np
 from gymnasium.vector.utils import batch_space
 
 from seqdex_drake.tasks.base import TaskConfig
+from seqdex_drake.tasks.registry import default_config
 
 #: Modules the forkserver imports once, so that each worker forks with Drake and the env code loaded (about
 #: 0.4 s instead of 1.5 s per worker start). Only takes effect if the forkserver is not yet running.
@@ -125,13 +126,15 @@ class ProcessVectorEnv:
         seed: env ``i`` is seeded ``seed + i`` at the first reset.
         config: the task config for every worker (default: the task's ``default_config()``).
         start_method: ``"forkserver"`` (default) or ``"spawn"``; ``"fork"`` is accepted but unsafe after torch use.
-        timeout: seconds to wait for any one answer (worker start included) before raising :class:`WorkerError`.
+        timeout: seconds to wait for the workers' answers to one call (worker start included) before raising
+            :class:`WorkerError`.
     """
 
     def __init__(self, task_name: str, num_envs: int, seed: int = 0, config: TaskConfig | None = None,
                  start_method: str = "forkserver", timeout: float = 300.0):
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        default_config(task_name)  # Unknown names fail here, listing the valid ones.
         self.task_name = task_name
         self.num_envs = num_envs
         self.seed = seed
