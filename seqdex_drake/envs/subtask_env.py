@@ -198,8 +198,10 @@ class SubtaskEnv(gym.Env):
         action = np.clip(self.randomizer.perturb_action(action), -1.0, 1.0)  # DR hook: action noise
         ema = self.config.ema
         self._hand_target = ema * scale_action_to_limits(action[:16]) + (1 - ema) * self._hand_target
-        p_WC = self.ik.palm_pose(self.arm_q()).translation() + self.config.wrist_step * action[16:]
-        arm_target = self.ik.step(self.arm_q(), p_WC, self.R_WP_hold)
+        # Integrate the wrist command from the previous *target*, not the measured arm: with a payload the
+        # PD controller sags a little, and re-targeting from the measurement would turn that sag into drift.
+        p_WC = self.ik.palm_pose(self._arm_target).translation() + self.config.wrist_step * action[16:]
+        arm_target = self.ik.step(self._arm_target, p_WC, self.R_WP_hold)
         self._set_sources(arm_target, self._hand_target, action)
         info = {"nan_action": False, "simulator_error": False}
         try:

@@ -1,6 +1,6 @@
 """The sub-task registry: names to modules; creation, scripts and tests are driven from here."""
 
-from seqdex_drake.tasks import grasp, insert, orient, search, tool_grasp
+from seqdex_drake.tasks import grasp, insert, orient, search, tool_grasp, tool_reorient
 from seqdex_drake.tasks.base import Task, TaskConfig
 
 #: name -> (default_config, Task class)
@@ -10,6 +10,7 @@ REGISTRY = {
     "grasp": (grasp.default_config, grasp.GraspTask),
     "insert": (insert.default_config, insert.InsertTask),
     "tool_grasp": (tool_grasp.default_config, tool_grasp.ToolGraspTask),
+    "tool_reorient": (tool_reorient.default_config, tool_reorient.ToolReorientTask),
 }
 
 

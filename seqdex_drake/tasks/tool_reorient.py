@@ -1,8 +1,12 @@
 """Tool Reorient (Tool Positioning): turn the held tool to its ready-to-use pose, head facing down.
 
 Reset: a hand-off state from tool Grasp (``options={"initial_state": ...}``), or standalone the hammer
-settled in a synthesized tripod grasp of its handle (``tasks/handoff.py``). Goal: the start pose flipped
-180 deg about the tool's long axis y (FACTS.md), at the same place. Observation: base + goal (173).
+settled, by simulation, in a fist (power) grasp of its handle with the palm down (``tasks/handoff.py``,
+:func:`~seqdex_drake.tasks.handoff.synthesized_tool_grasp`; only the hammer has one). The hand's PD targets
+are then the fist: hand actions are absolute targets, so a policy keeps holding with
+:func:`~seqdex_drake.tasks.handoff.hold_action`, while the zero action opens the hand to mid-range. Goal: the
+start pose flipped 180 deg about the tool's long axis y (FACTS.md), at the same place. Observation: base +
+goal (173).
 Reward: the paper's In-hand Orientation formula. Success: orientation error below 0.5 rad (FACTS.md).
 """
 

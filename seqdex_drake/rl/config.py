@@ -1,0 +1,145 @@
+"""PPO hyperparameters: one dataclass, with the paper's per-sub-task values.
+
+The defaults are the paper's appendix tables ("Hyperparameters of PPO", Building Blocks and Tool Positioning),
+which match the release's PPO config (an rl_games / bi-dexhands style PPO): hidden sizes [1024, 1024, 512], ELU,
+learning rate 3e-4 adapted by KL (desired 0.016), clip 0.2, max grad norm 1, gamma 0.96 (0.9 for Grasp and
+Insert), GAE lambda 0.95, initial noise std 0.8, entropy coefficient 0. ``PPOConfig.for_task(name)`` returns the
+column of those tables for one sub-task. The task config (``seqdex_drake.tasks.base.TaskConfig``) is a separate type.
+"""
+
+import dataclasses
+import math
+from typing import Any
+
+
+@dataclasses.dataclass
+class PPOConfig:
+    """Hyperparameters of one PPO run (algorithm, networks, rollout size, logging and checkpoints)."""
+
+    # ----------------------------------------------------------------------------------------- networks
+    actor_hidden_sizes: tuple[int, ...] = (1024, 1024, 512)
+    """Hidden layer widths of the actor MLP (paper tables: [1024, 1024, 512])."""
+    critic_hidden_sizes: tuple[int, ...] = (1024, 1024, 512)
+    """Hidden layer widths of the critic MLP; a separate network from the actor (no shared trunk)."""
+    activation: str = "elu"
+    """Hidden-layer activation: ``elu`` (paper), ``relu``, ``tanh`` or ``selu``."""
+    init_log_std: float = math.log(0.8)
+    """Initial log standard deviation of the Gaussian policy (paper: init noise std 0.8)."""
+    normalize_observations: bool = True
+    """Normalize observations with a running mean / variance kept inside the model (saved with it)."""
+    observation_clip: float = 5.0
+    """Normalized observations are clipped to [-observation_clip, observation_clip]."""
+
+    # ---------------------------------------------------------------------------------------- optimizer
+    learning_rate: float = 3e-4
+    """Initial Adam learning rate (paper: 3e-4)."""
+    adaptive_lr: bool = True
+    """Adapt the learning rate to the KL divergence after every minibatch (rl_games / release schedule):
+    ``lr /= lr_factor`` if ``kl > 2 * desired_kl``, ``lr *= lr_factor`` if ``kl < desired_kl / 2``."""
+    desired_kl: float = 0.016
+    """Target KL divergence between the rollout policy and the updated policy (paper: 0.016)."""
+    lr_factor: float = 1.5
+    """Multiplicative step of the adaptive learning-rate schedule."""
+    min_learning_rate: float = 1e-6
+    """Lower clamp of the adaptive learning rate."""
+    max_learning_rate: float = 1e-2
+    """Upper clamp of the adaptive learning rate."""
+    max_grad_norm: float = 1.0
+    """Global gradient-norm clip over actor and critic parameters (paper: 1)."""
+
+    # ------------------------------------------------------------------------------------------- losses
+    gamma: float = 0.96
+    """Discount factor (paper: 0.96; 0.9 for Grasp and Insert)."""
+    gae_lambda: float = 0.95
+    """GAE lambda (paper: 0.95)."""
+    clip_coef: float = 0.2
+    """PPO ratio clip range epsilon (paper: 0.2)."""
+    clip_value_loss: bool = True
+    """Clip the value prediction to ``old_value +- value_clip_coef`` and take the larger loss (rl_games)."""
+    value_clip_coef: float = 0.2
+    """Clip range of the value prediction when ``clip_value_loss`` is on."""
+    entropy_coef: float = 0.0
+    """Weight of the entropy bonus (paper: 0)."""
+    value_coef: float = 1.0
+    """Weight of the value loss ``max((V - R)^2, (V_clipped - R)^2)`` in the total loss (release: 1)."""
+    bounds_loss_coef: float = 1e-4
+    """Weight of the rl_games bounds loss, a squared penalty on action means outside [-bound, bound]."""
+    bounds_loss_bound: float = 1.1
+    """Soft bound of the bounds loss on the action mean (rl_games: 1.1, actions live in [-1, 1])."""
+    normalize_advantages: bool = True
+    """Standardize the advantages of each rollout to zero mean and unit variance before the update."""
+
+    # ----------------------------------------------------------------------------------------- rollouts
+    num_envs: int = 16
+    """Parallel environments (the release used 1024-2048 GPU envs; Drake workers are processes)."""
+    horizon: int = 8
+    """Environment steps per env per update (paper tables: 'episode-length' 8 or 20, the release's nsteps)."""
+    num_epochs: int = 5
+    """Passes over each rollout per update (paper: 5, 10 for the orienting tasks, 2 for Grasp and Insert)."""
+    num_minibatches: int = 4
+    """Minibatches per epoch; the minibatch size is ``num_envs * horizon // num_minibatches``."""
+    clip_actions: bool = True
+    """Clip sampled actions to the action space's bounds before stepping the env (the buffer keeps the sample)."""
+    total_steps: int = 10_000_000
+    """Environment steps (summed over envs) after which ``train`` stops."""
+
+    # ------------------------------------------------------------------------------- run and bookkeeping
+    seed: int = 0
+    """Seed of python, numpy and torch (``seed_everything``) and of the policy's sampling generator."""
+    device: str = "cpu"
+    """Torch device of the model and the update (``cpu`` or ``cuda``)."""
+    stats_window: int = 100
+    """Episodes in the moving window of the logged return, length and success rate (and of best.pt)."""
+    checkpoint_every: int = 50
+    """Write ``last.pt`` every this many updates (and at the end of training)."""
+
+    # ---------------------------------------------------------------------------------------- presets
+    @classmethod
+    def for_task(cls, name: str, **overrides: Any) -> "PPOConfig":
+        """The paper's PPO hyperparameters for one sub-task (appendix tables), with optional overrides.
+
+        Args:
+            name: ``search``, ``orient``, ``grasp``, ``insert``, ``tool_grasp`` or ``tool_reorient``.
+            **overrides: any field of this dataclass, e.g. ``num_envs=8``.
+        """
+        if name not in PAPER_TASK_HYPERPARAMETERS:
+            raise ValueError(f"no paper PPO hyperparameters for sub-task {name!r}; "
+                             f"known: {sorted(PAPER_TASK_HYPERPARAMETERS)}")
+        return dataclasses.replace(cls(), **{**PAPER_TASK_HYPERPARAMETERS[name], **overrides})
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-data form (lists for tuples), as stored in checkpoints."""
+        return {key: list(value) if isinstance(value, tuple) else value
+                for key, value in dataclasses.asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "PPOConfig":
+        """Inverse of :meth:`to_dict`; unknown keys raise ``ValueError`` naming them."""
+        fields = {field.name for field in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - fields)
+        if unknown:
+            raise ValueError(f"unknown PPOConfig fields {unknown}; known: {sorted(fields)}")
+        return cls(**{key: tuple(value) if isinstance(value, list) else value for key, value in data.items()})
+
+    @property
+    def batch_size(self) -> int:
+        """Transitions per update: ``num_envs * horizon``."""
+        return self.num_envs * self.horizon
+
+    @property
+    def minibatch_size(self) -> int:
+        """Transitions per gradient step."""
+        return self.batch_size // self.num_minibatches
+
+
+#: Per-sub-task columns of the paper's tables "Hyperparameters of PPO in Building Blocks / Tool Positioning".
+#: The remaining rows (hidden sizes, clip 0.2, grad norm 1, lr 3e-4, lambda 0.95, noise std 0.8,
+#: desired KL 0.016, entropy 0) are identical for every sub-task and are the dataclass defaults.
+PAPER_TASK_HYPERPARAMETERS: dict[str, dict[str, Any]] = {
+    "search": dict(num_minibatches=4, num_epochs=5, horizon=8, gamma=0.96),
+    "orient": dict(num_minibatches=4, num_epochs=10, horizon=20, gamma=0.96),
+    "grasp": dict(num_minibatches=8, num_epochs=2, horizon=8, gamma=0.9),
+    "insert": dict(num_minibatches=8, num_epochs=2, horizon=8, gamma=0.9),
+    "tool_grasp": dict(num_minibatches=4, num_epochs=5, horizon=8, gamma=0.96),
+    "tool_reorient": dict(num_minibatches=4, num_epochs=10, horizon=20, gamma=0.96),
+}

@@ -1,0 +1,298 @@
+"""Proximal Policy Optimization, readable top to bottom (CleanRL's ppo_continuous_action) but importable.
+
+One iteration = :meth:`PPO.collect` (``horizon`` steps of every env into a :class:`RolloutBuffer`) then
+:meth:`PPO.update` (GAE, ``num_epochs`` passes of ``num_minibatches`` minibatches with the clipped surrogate,
+clipped value loss, entropy and bounds terms, gradient clipping and the KL-adaptive learning rate).
+:meth:`PPO.train` loops, logs to TensorBoard and writes ``last.pt`` / ``best.pt`` full-state checkpoints.
+
+Vector env API (``seqdex_drake.envs.vector.ProcessVectorEnv``, ``seqdex_drake.rl.toy_env.TargetVectorEnv``):
+``reset(seed=...) -> (obs[n, d], infos)``, ``step(actions[n, a]) -> obs, rewards, terminated, truncated, infos``
+with automatic reset; a finished episode's last observation is ``info["final_observation"]``.
+
+Observation normalization: the statistics stay fixed during a rollout and its update (so the update's first
+probability ratios are exactly 1) and absorb the rollout's observations after the gradient steps.
+The critic reads the actor's observation; the model's ``critic_obs_dim`` hook is not fed by ``collect`` yet.
+"""
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.tensorboard import SummaryWriter
+from tqdm import tqdm
+
+from seqdex_drake.rl.buffer import RolloutBuffer
+from seqdex_drake.rl.checkpoint import capture_rng_state, load_checkpoint, restore_rng_state, save_checkpoint
+from seqdex_drake.rl.config import PPOConfig
+from seqdex_drake.rl.episode_stats import EpisodeStats
+from seqdex_drake.rl.losses import (
+    adaptive_learning_rate,
+    bounds_loss,
+    clipped_surrogate_loss,
+    clipped_value_loss,
+    gaussian_kl,
+)
+from seqdex_drake.rl.networks import ActorCritic
+from seqdex_drake.rl.seeding import seed_everything
+
+#: ``callback(ppo, metrics)`` after every update; returning ``False`` stops training.
+Callback = Callable[["PPO", dict[str, float]], bool | None]
+
+CHECKPOINT_KEYS = ("model", "optimizer", "counters", "config", "dims", "rng", "best", "stats")
+
+
+class PPO:
+    """The PPO learner: model, optimizer, rollout buffer, counters and RNG of one training run.
+
+    Constructing it seeds everything with ``config.seed`` (as SB3 does), so two learners with the same config
+    and env produce identical runs.
+
+    Args:
+        config: the hyperparameters.
+        obs_dim: size of the observation vector.
+        action_dim: size of the action vector.
+        action_low, action_high: action bounds; sampled actions are clipped to them before stepping the env when
+            ``config.clip_actions`` (the buffer keeps the unclipped sample for the log-probability).
+    """
+
+    def __init__(self, config: PPOConfig, obs_dim: int, action_dim: int,
+                 action_low: Sequence[float] | None = None, action_high: Sequence[float] | None = None):
+        self.config = config
+        seed_everything(config.seed)
+        self.device = torch.device(config.device)
+        self.obs_dim, self.action_dim = obs_dim, action_dim
+        self.action_low = None if action_low is None else torch.as_tensor(action_low, dtype=torch.float32)
+        self.action_high = None if action_high is None else torch.as_tensor(action_high, dtype=torch.float32)
+        self.model = ActorCritic.from_config(obs_dim, action_dim, config).to(self.device)
+        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=config.learning_rate)
+        self.generator = torch.Generator().manual_seed(config.seed)  # Action noise and minibatch shuffles.
+        self.learning_rate = config.learning_rate
+        self.global_step = 0
+        self.num_updates = 0
+        self.best = {"metric": None, "value": -math.inf}
+        self.stats = EpisodeStats(config.num_envs, config.stats_window)
+        self.buffer: RolloutBuffer | None = None
+        self._env = None
+        self._next_obs: torch.Tensor | None = None
+
+    @classmethod
+    def for_env(cls, config: PPOConfig, vec_env) -> "PPO":
+        """A learner sized for ``vec_env`` (its spaces, and ``num_envs`` taken from the env)."""
+        config = dataclasses.replace(config, num_envs=len(vec_env))
+        action_space = vec_env.single_action_space
+        bounded = np.all(np.isfinite(action_space.low)) and np.all(np.isfinite(action_space.high))
+        return cls(config, int(np.prod(vec_env.single_observation_space.shape)), int(np.prod(action_space.shape)),
+                   action_space.low if bounded else None, action_space.high if bounded else None)
+
+    # ------------------------------------------------------------------------------------------ acting
+    def _tensor(self, array) -> torch.Tensor:
+        return torch.as_tensor(np.asarray(array), dtype=torch.float32, device=self.device)
+
+    @torch.no_grad()
+    def act(self, obs: torch.Tensor, deterministic: bool = False):
+        """Actions [n, a] (sampled, or the mean), their log-probabilities [n], the means [n, a], values [n]."""
+        means = self.model.action_mean(obs)
+        std = self.model.log_std.exp()
+        if deterministic:
+            actions = means
+        else:
+            noise = torch.randn(means.shape, generator=self.generator).to(self.device)
+            actions = means + std * noise
+        log_probs = torch.distributions.Normal(means, std).log_prob(actions).sum(-1)
+        return actions, log_probs, means, self.model.value(obs)
+
+    def _env_actions(self, actions: torch.Tensor) -> np.ndarray:
+        if self.config.clip_actions and self.action_low is not None:
+            actions = torch.clamp(actions, self.action_low.to(actions), self.action_high.to(actions))
+        return actions.cpu().numpy()
+
+    def _attach(self, vec_env) -> None:
+        """Starts fresh episodes on ``vec_env`` (seeded by the config seed and the step count)."""
+        result = vec_env.reset(seed=self.config.seed + self.global_step)
+        obs = result[0] if isinstance(result, tuple) else result
+        self._env, self._next_obs = vec_env, self._tensor(obs)
+        self.stats.reset_envs(len(obs))
+
+    # ----------------------------------------------------------------------------------------- rollout
+    def collect(self, vec_env, steps: int | None = None) -> dict[str, float]:
+        """Steps every env ``steps`` times (default ``config.horizon``) with the current policy into the buffer.
+
+        A new ``vec_env`` (or the first call, or the first after :meth:`resume`) is reset first.
+
+        Returns:
+            ``reward/<term>`` means per env step over this rollout and ``charts/rollout_*`` episode figures.
+        """
+        steps = steps or self.config.horizon
+        if vec_env is not self._env:
+            self._attach(vec_env)
+        num_envs = self._next_obs.shape[0]
+        if self.buffer is None or (self.buffer.horizon, self.buffer.num_envs) != (steps, num_envs):
+            self.buffer = RolloutBuffer(steps, num_envs, self.obs_dim, self.action_dim, device=self.device)
+        self.buffer.reset(self.model.log_std)
+        for _ in range(steps):
+            obs = self._next_obs
+            actions, log_probs, means, values = self.act(obs)
+            next_obs, rewards, terminated, truncated, infos = vec_env.step(self._env_actions(actions))
+            terminated, truncated = np.asarray(terminated, dtype=bool), np.asarray(truncated, dtype=bool)
+            final_values = torch.zeros(num_envs, device=self.device)
+            bootstrap = np.flatnonzero(truncated & ~terminated)
+            if len(bootstrap):
+                if any("final_observation" not in infos[i] for i in bootstrap):
+                    raise KeyError("a truncated episode's info lacks 'final_observation'; the vector env must "
+                                   "autoreset SB3-style (see seqdex_drake.envs.vector)")
+                final_obs = self._tensor(np.stack([infos[i]["final_observation"] for i in bootstrap]))
+                with torch.no_grad():
+                    final_values[torch.as_tensor(bootstrap, device=self.device)] = self.model.value(final_obs)
+            self.buffer.add(obs, actions, log_probs, means, rewards, terminated, truncated, values, final_values)
+            self.stats.record_step(np.asarray(rewards, dtype=np.float64), terminated, truncated, infos)
+            self._next_obs = self._tensor(next_obs)
+            self.global_step += num_envs
+        return self.stats.rollout_metrics()
+
+    # ------------------------------------------------------------------------------------------ update
+    def _set_learning_rate(self, learning_rate: float) -> None:
+        self.learning_rate = learning_rate
+        for group in self.optimizer.param_groups:
+            group["lr"] = learning_rate
+
+    def update(self) -> dict[str, float]:
+        """One PPO update on the collected rollout; returns the ``losses/*`` means and ``charts/learning_rate``."""
+        config, buffer, model = self.config, self.buffer, self.model
+        if buffer is None or not buffer.full:
+            raise RuntimeError("update() needs a full rollout: call collect() first")
+        with torch.no_grad():
+            buffer.compute_returns(model.value(self._next_obs), config.gamma, config.gae_lambda)
+        advantages = buffer.advantages.reshape(-1)
+        if config.normalize_advantages and advantages.numel() > 1:
+            advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+        sums = dict.fromkeys(("policy", "value", "entropy", "bounds", "approx_kl", "clip_fraction"), 0.0)
+        count = 0
+        for _ in range(config.num_epochs):
+            for batch in buffer.minibatches(config.num_minibatches, self.generator, advantages):
+                log_probs, entropy, values, means = model.evaluate(batch["obs"], batch["actions"])
+                policy_loss, clip_fraction = clipped_surrogate_loss(log_probs, batch["log_probs"],
+                                                                    batch["advantages"], config.clip_coef)
+                value_loss = clipped_value_loss(values, batch["values"], batch["returns"],
+                                                config.value_clip_coef if config.clip_value_loss else None)
+                entropy = entropy.mean()
+                bound_loss = bounds_loss(means, config.bounds_loss_bound)
+                loss = (policy_loss + config.value_coef * value_loss - config.entropy_coef * entropy
+                        + config.bounds_loss_coef * bound_loss)
+                with torch.no_grad():
+                    kl = gaussian_kl(batch["means"], buffer.policy_log_std, means, model.log_std).mean().item()
+                if config.adaptive_lr:  # Before the step, as in the release: the KL of the pre-step policy.
+                    self._set_learning_rate(adaptive_learning_rate(
+                        self.learning_rate, kl, config.desired_kl, config.lr_factor, config.min_learning_rate,
+                        config.max_learning_rate))
+                self.optimizer.zero_grad()
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(model.parameters(), config.max_grad_norm)
+                self.optimizer.step()
+                for key, value in (("policy", policy_loss), ("value", value_loss), ("entropy", entropy),
+                                   ("bounds", bound_loss), ("approx_kl", kl), ("clip_fraction", clip_fraction)):
+                    sums[key] += value.item() if torch.is_tensor(value) else value
+                count += 1
+        model.update_normalizer(buffer.obs.reshape(-1, self.obs_dim))
+        self.num_updates += 1
+        returns, values = buffer.returns.reshape(-1), buffer.values.reshape(-1)
+        explained = 1.0 - (returns - values).var() / returns.var() if returns.var() > 0 else torch.tensor(math.nan)
+        metrics = {f"losses/{key}": value / count for key, value in sums.items()}
+        metrics.update({"losses/explained_variance": float(explained), "charts/learning_rate": self.learning_rate,
+                        "charts/log_std": model.log_std.mean().item()})
+        return metrics
+
+    # ------------------------------------------------------------------------------------------- train
+    def train(self, vec_env, run_dir: str | Path, total_steps: int | None = None,
+              callbacks: Sequence[Callback] = (), progress: bool = True) -> dict[str, float]:
+        """Collects and updates until ``global_step >= total_steps`` (default ``config.total_steps``).
+
+        Logs every update's metrics to TensorBoard in ``run_dir`` (``charts/``, ``losses/``, ``reward/<term>``,
+        ``charts/SPS``), writes ``run_dir/last.pt`` every ``config.checkpoint_every`` updates and at the end, and
+        ``run_dir/best.pt`` whenever the windowed success rate (mean return if the env reports no ``success``)
+        beats the best so far. Returns the last update's metrics.
+        """
+        total_steps = total_steps or self.config.total_steps
+        run_dir = Path(run_dir)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        writer = SummaryWriter(str(run_dir))
+        bar = tqdm(total=total_steps, initial=min(self.global_step, total_steps), unit="step", disable=not progress,
+                   dynamic_ncols=True)
+        start_time, start_step, metrics = time.perf_counter(), self.global_step, {}
+        try:
+            while self.global_step < total_steps:
+                step_before = self.global_step
+                metrics = {**self.collect(vec_env), **self.update(), **self.stats.window_metrics()}
+                metrics["charts/SPS"] = (self.global_step - start_step) / max(time.perf_counter() - start_time, 1e-9)
+                for key, value in metrics.items():
+                    writer.add_scalar(key, value, self.global_step)
+                bar.update(min(self.global_step, total_steps) - min(step_before, total_steps))
+                bar.set_postfix(SPS=f"{metrics['charts/SPS']:.0f}",
+                                success=f"{metrics.get('charts/success_rate', math.nan):.2f}",
+                                ret=f"{metrics.get('charts/episode_return', math.nan):.2f}")
+                selection = self.stats.selection_metric()
+                if selection is not None and selection[1] > self.best["value"]:
+                    self.best = {"metric": selection[0], "value": selection[1]}
+                    self.save(run_dir / "best.pt")
+                if self.num_updates % self.config.checkpoint_every == 0:
+                    self.save(run_dir / "last.pt")
+                if any(callback(self, metrics) is False for callback in callbacks):
+                    break
+            self.save(run_dir / "last.pt")
+        finally:
+            writer.close()
+            bar.close()
+        return metrics
+
+    # ------------------------------------------------------------------------------------- checkpoints
+    def state_dict(self) -> dict:
+        """Everything needed to continue training exactly (see ``seqdex_drake.rl.checkpoint``)."""
+        bounds = None if self.action_low is None else (self.action_low.tolist(), self.action_high.tolist())
+        return {
+            "model": self.model.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "counters": {"global_step": self.global_step, "num_updates": self.num_updates,
+                         "num_episodes": self.stats.num_episodes, "learning_rate": self.learning_rate},
+            "config": self.config.to_dict(),
+            "dims": {"obs_dim": self.obs_dim, "action_dim": self.action_dim, "action_bounds": bounds},
+            "rng": capture_rng_state({"policy": self.generator}),
+            "best": dict(self.best),
+            "stats": self.stats.state_dict(),
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restores :meth:`state_dict`'s output; the next :meth:`collect` starts fresh episodes on its env."""
+        self.model.load_state_dict(state["model"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        counters = state["counters"]
+        self.global_step, self.num_updates = int(counters["global_step"]), int(counters["num_updates"])
+        self.learning_rate = float(counters["learning_rate"])
+        self.best = dict(state["best"])
+        self.stats.load_state_dict(state["stats"])
+        restore_rng_state(state["rng"], {"policy": self.generator})
+        self._env, self._next_obs, self.buffer = None, None, None
+
+    def save(self, path: str | Path) -> Path:
+        """Writes a full-state checkpoint atomically."""
+        return save_checkpoint(path, self.state_dict())
+
+    @classmethod
+    def resume(cls, path: str | Path, device: str | None = None) -> "PPO":
+        """A learner rebuilt from a checkpoint (config, model, optimizer, counters, RNG, best metric, stats).
+
+        Args:
+            path: a ``last.pt`` / ``best.pt`` written by :meth:`save` or :meth:`train`.
+            device: override of the saved ``config.device`` (e.g. resume a GPU run on CPU).
+        """
+        state = load_checkpoint(path, map_location=device or "cpu", required_keys=CHECKPOINT_KEYS)
+        config = PPOConfig.from_dict(state["config"])
+        if device is not None:
+            config = dataclasses.replace(config, device=device)
+        dims = state["dims"]
+        bounds = dims["action_bounds"] or (None, None)
+        ppo = cls(config, dims["obs_dim"], dims["action_dim"], bounds[0], bounds[1])
+        ppo.load_state_dict(state)
+        return ppo
