@@ -38,7 +38,8 @@ class RobotConfig:
     arm_kd: float = 80.0
     """Franka joint PD damping (N m s / rad)."""
     hand_kp: float = 3.0
-    """Allegro joint PD stiffness (N m / rad). The release used 20 with a 0.7 N m effort cap; see README."""
+    """Allegro joint PD stiffness (N m / rad). The release used kp 20 / kd 1 (effort cap 0.7 N m); both hold a
+    lifted block (tests/test_grasp_hold.py runs both), and the scripted hand-off resets were tuned at 3."""
     hand_kd: float = 0.1
     """Allegro joint PD damping (N m s / rad)."""
     hand_rotor_inertia: float = 1e-4
