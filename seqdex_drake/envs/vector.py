@@ -172,7 +172,10 @@ class ProcessVectorEnv:
         try:
             self._remotes[index].send((command, data))
         except (BrokenPipeError, OSError) as error:
-            self._fail(index, f"could not send '{command}' ({error})")
+            process = self._processes[index]
+            process.join(timeout=1.0)  # A broken pipe usually means the worker died: say how.
+            status = _exit_description(process.exitcode) if process.exitcode is not None else "still running"
+            self._fail(index, f"could not send '{command}' ({error}); the worker process: {status}")
 
     def _receive(self, index: int, deadline: float):
         """The payload of worker ``index``'s next answer; raises WorkerError on error, death or timeout."""

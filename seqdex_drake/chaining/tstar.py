@@ -1,0 +1,148 @@
+"""The T-STAR baseline's terminal-state regularizer (Lee et al., "Adversarial Skill Chaining for Long-Horizon
+Robot Manipulation via Terminal State Regularization", CoRL 2021), as summarized in the project's FACTS.
+
+One least-squares GAN discriminator per sub-task boundary separates the *next* sub-task's initial states
+(label 1, the "expert" side) from the *previous* policy's terminal states (label 0). The previous policy is then
+rewarded, once at its switch step and with a large weight (added by the chaining code), with
+``1 - (clamp(D(s), 0, 1) - 1)^2``: 1 where the discriminator takes the terminal state for a valid initial state
+of the next sub-task, 0 where it is sure it is not.
+
+Training objective per step (the public implementation's "lsgan" loss with a WGAN-GP style penalty):
+``mean((D(pos) - 1)^2) + mean(D(neg)^2) + lambda * mean((||grad_x D(x_hat)|| - 1)^2)`` with ``x_hat`` random
+interpolations between positive and negative samples (in normalized observation space), lambda = 10.
+"""
+
+import dataclasses
+
+import numpy as np
+import torch
+from torch import nn
+
+
+@dataclasses.dataclass
+class TStarConfig:
+    """Discriminator settings (defaults from T-STAR's public code)."""
+
+    hidden: tuple[int, ...] = (256, 256)
+    """Hidden layer sizes of the discriminator MLP."""
+    activation: str = "tanh"
+    """Hidden activation: "tanh" (T-STAR) or "relu"."""
+    lr: float = 1e-4
+    """Adam learning rate."""
+    grad_penalty: float = 10.0
+    """Weight of the gradient penalty."""
+    obs_clip: float = 10.0
+    """Normalized observations are clipped to +-this."""
+    seed: int = 0
+    """Seeds the weight initialization and the penalty's interpolation draws."""
+    device: str = "cpu"
+    """Torch device of the discriminator."""
+
+    def __post_init__(self):
+        if self.activation not in ("tanh", "relu"):
+            raise ValueError(f"activation must be 'tanh' or 'relu', got {self.activation!r}")
+        self.hidden = tuple(int(h) for h in self.hidden)
+
+
+class TStarDiscriminator(nn.Module):
+    """LSGAN discriminator D: observation -> scalar (about 1 for next-task initial states, 0 for terminal ones).
+
+    Observations are standardized by buffers set with :meth:`fit_normalizer` (identity until then; fit it on
+    the union of both datasets before training).
+    """
+
+    def __init__(self, obs_dim: int, config: TStarConfig | None = None):
+        super().__init__()
+        self.config = config or TStarConfig()
+        self.obs_dim = int(obs_dim)
+        device = torch.device(self.config.device)
+        with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
+            torch.manual_seed(self.config.seed)
+            activation = nn.Tanh if self.config.activation == "tanh" else nn.ReLU
+            layers, width = [], obs_dim
+            for hidden in self.config.hidden:
+                layers += [nn.Linear(width, hidden), activation()]
+                width = hidden
+            self.net = nn.Sequential(*layers, nn.Linear(width, 1))
+        self.register_buffer("obs_mean", torch.zeros(obs_dim))
+        self.register_buffer("obs_std", torch.ones(obs_dim))
+        self.to(device)
+        self.optimizer = torch.optim.Adam(self.net.parameters(), lr=self.config.lr)
+        self._generator = torch.Generator(device=device).manual_seed(self.config.seed)
+
+    def _tensor(self, states) -> torch.Tensor:
+        states = torch.as_tensor(np.asarray(states, dtype=np.float32) if not torch.is_tensor(states) else states,
+                                 dtype=torch.float32, device=self.obs_mean.device)
+        if states.ndim != 2 or states.shape[1] != self.obs_dim:
+            raise ValueError(f"expected states of shape (batch, {self.obs_dim}), got {tuple(states.shape)}")
+        return states
+
+    @torch.no_grad()
+    def fit_normalizer(self, states) -> None:
+        """Sets the observation mean and standard deviation from ``states`` (batch, obs_dim)."""
+        states = self._tensor(states)
+        self.obs_mean.copy_(states.mean(0))
+        self.obs_std.copy_(states.std(0, unbiased=False).clamp_min(1e-6))
+
+    def normalize(self, states) -> torch.Tensor:
+        clip = self.config.obs_clip
+        return ((self._tensor(states) - self.obs_mean) / self.obs_std).clamp(-clip, clip)
+
+    def forward(self, states) -> torch.Tensor:
+        """Raw discriminator output D, shape (batch,)."""
+        return self.net(self.normalize(states)).squeeze(-1)
+
+    def gradient_penalty(self, positive, negative) -> torch.Tensor:
+        """mean((||grad D(x_hat)|| - 1)^2) over random interpolations x_hat of positive and negative samples (in
+        normalized space, paired row by row; the larger set is cut to the smaller's size)."""
+        positive, negative = self.normalize(positive), self.normalize(negative)
+        count = min(len(positive), len(negative))
+        alpha = torch.rand(count, 1, generator=self._generator, device=positive.device)
+        mixed = (alpha * positive[:count] + (1 - alpha) * negative[:count]).detach().requires_grad_(True)
+        output = self.net(mixed)
+        (grad,) = torch.autograd.grad(output.sum(), mixed, create_graph=True)
+        return ((grad.norm(2, dim=1) - 1) ** 2).mean()
+
+    def train_step(self, positive, negative) -> dict[str, float]:
+        """One Adam step on a batch of next-task initial states (``positive``) and previous-policy terminal states
+        (``negative``); returns the loss terms and mean outputs."""
+        self.train()
+        d_positive, d_negative = self(positive), self(negative)
+        positive_loss = ((d_positive - 1) ** 2).mean()
+        negative_loss = (d_negative ** 2).mean()
+        penalty = self.gradient_penalty(positive, negative)
+        loss = positive_loss + negative_loss + self.config.grad_penalty * penalty
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizer.step()
+        return {"loss": float(loss), "positive_loss": float(positive_loss), "negative_loss": float(negative_loss),
+                "grad_penalty": float(penalty), "positive_output": float(d_positive.mean()),
+                "negative_output": float(d_negative.mean())}
+
+    @torch.no_grad()
+    def transition_reward(self, states) -> np.ndarray:
+        """``1 - (clamp(D, 0, 1) - 1)^2`` in [0, 1], shape (batch,)."""
+        self.eval()
+        d = self(states).clamp(0.0, 1.0)
+        return (1.0 - (d - 1.0) ** 2).cpu().numpy()
+
+    @torch.no_grad()
+    def accuracy(self, positive, negative) -> float:
+        """Share of samples on the right side of D = 0.5."""
+        self.eval()
+        right = (self(positive) > 0.5).sum() + (self(negative) <= 0.5).sum()
+        return float(right) / (len(positive) + len(negative))
+
+    def training_state(self) -> dict:
+        """Weights, normalizer and optimizer state as tensors and plain data (for the chaining checkpoints)."""
+        return {"obs_dim": self.obs_dim, "config": dataclasses.asdict(self.config), "model": self.state_dict(),
+                "optimizer": self.optimizer.state_dict(), "generator": self._generator.get_state()}
+
+    @classmethod
+    def from_training_state(cls, state: dict) -> "TStarDiscriminator":
+        """Inverse of :meth:`training_state`."""
+        discriminator = cls(state["obs_dim"], TStarConfig(**state["config"]))
+        discriminator.load_state_dict(state["model"])
+        discriminator.optimizer.load_state_dict(state["optimizer"])
+        discriminator._generator.set_state(state["generator"])
+        return discriminator
