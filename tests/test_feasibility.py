@@ -97,12 +97,12 @@ def test_overfits_a_nonlinear_function_of_the_last_velocity():
 
 
 def test_temporal_model_beats_the_last_state_mlp_on_velocity():
-    histories, velocity = velocity_dataset(512, history=4, seed=0)
+    histories, velocity = velocity_dataset(1024, history=4, seed=0)
     results = {}
     for temporal in (True, False):
         config = FeasibilityConfig(history=4, temporal=temporal, epochs=60, **SMALL)
         _, results[temporal] = train_feasibility(histories, velocity, config)
-    assert results[True]["val_r2"] > 0.5, results
+    assert results[True]["val_r2"] > 0.8, results
     assert results[False]["val_r2"] < 0.25, results
     assert results[True]["val_mse"] < 0.5 * results[False]["val_mse"]
 

@@ -23,6 +23,7 @@ Both models normalize observations inside (buffers fitted on the training set) a
 units (the regression runs on standardized returns; the mean and scale are buffers of the model).
 """
 
+import abc
 import dataclasses
 import math
 
@@ -115,7 +116,7 @@ def pad_history(observations: np.ndarray, length: int) -> np.ndarray:
     return np.concatenate([pad, observations], axis=-2)
 
 
-class _FeasibilityModel(nn.Module):
+class _FeasibilityModel(nn.Module, abc.ABC):
     """Shared parts: observation normalizer and return scale buffers, input checks, numpy prediction."""
 
     def __init__(self, obs_dim: int, config: FeasibilityConfig):
@@ -142,8 +143,9 @@ class _FeasibilityModel(nn.Module):
         clip = self.config.obs_clip
         return ((history - self.obs_mean) / self.obs_std).clamp(-clip, clip)
 
+    @abc.abstractmethod
     def forward_normalized(self, history: torch.Tensor, padding_mask: torch.Tensor | None = None) -> torch.Tensor:
-        raise NotImplementedError  # Implemented by both subclasses.
+        """The standardized return (the regression target's scale), shape (batch,)."""
 
     def forward(self, history: torch.Tensor, padding_mask: torch.Tensor | None = None) -> torch.Tensor:
         """F in return units, shape (batch,)."""

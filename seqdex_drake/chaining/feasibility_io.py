@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import torch
 
-from seqdex_drake.chaining.atomic import atomic_write
+from seqdex_drake.atomic import atomic_write
 from seqdex_drake.chaining.spec import ObservationSpec
 
 if TYPE_CHECKING:

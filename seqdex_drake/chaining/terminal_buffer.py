@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seqdex_drake.chaining.atomic import atomic_write
+from seqdex_drake.atomic import atomic_write
 from seqdex_drake.chaining.spec import ObservationSpec
 
 FORMAT = "seqdex_drake.chaining.terminal_buffer"

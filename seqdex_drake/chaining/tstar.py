@@ -10,8 +10,13 @@ of the next sub-task, 0 where it is sure it is not.
 Training objective per step (the public implementation's "lsgan" loss with a WGAN-GP style penalty):
 ``mean((D(pos) - 1)^2) + mean(D(neg)^2) + lambda * mean((||grad_x D(x_hat)|| - 1)^2)`` with ``x_hat`` random
 interpolations between positive and negative samples (in normalized observation space), lambda = 10.
+
+The penalty is two-sided, so it holds ||grad D|| near 1: D's spread within one class is about that class's std in
+normalized units, and D separates sharply only distributions that are far apart relative to their spread (the
+public code behaves the same; T-STAR relies on this smoothness for a graded reward).
 """
 
+import copy
 import dataclasses
 
 import numpy as np
@@ -115,9 +120,9 @@ class TStarDiscriminator(nn.Module):
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
-        return {"loss": float(loss), "positive_loss": float(positive_loss), "negative_loss": float(negative_loss),
-                "grad_penalty": float(penalty), "positive_output": float(d_positive.mean()),
-                "negative_output": float(d_negative.mean())}
+        values = {"loss": loss, "positive_loss": positive_loss, "negative_loss": negative_loss,
+                  "grad_penalty": penalty, "positive_output": d_positive.mean(), "negative_output": d_negative.mean()}
+        return {name: float(value.detach()) for name, value in values.items()}
 
     @torch.no_grad()
     def transition_reward(self, states) -> np.ndarray:
@@ -135,14 +140,15 @@ class TStarDiscriminator(nn.Module):
 
     def training_state(self) -> dict:
         """Weights, normalizer and optimizer state as tensors and plain data (for the chaining checkpoints)."""
-        return {"obs_dim": self.obs_dim, "config": dataclasses.asdict(self.config), "model": self.state_dict(),
-                "optimizer": self.optimizer.state_dict(), "generator": self._generator.get_state()}
+        return copy.deepcopy({"obs_dim": self.obs_dim, "config": dataclasses.asdict(self.config),
+                              "model": self.state_dict(), "optimizer": self.optimizer.state_dict(),
+                              "generator": self._generator.get_state()})  # A snapshot, not live references.
 
     @classmethod
     def from_training_state(cls, state: dict) -> "TStarDiscriminator":
         """Inverse of :meth:`training_state`."""
         discriminator = cls(state["obs_dim"], TStarConfig(**state["config"]))
         discriminator.load_state_dict(state["model"])
-        discriminator.optimizer.load_state_dict(state["optimizer"])
+        discriminator.optimizer.load_state_dict(copy.deepcopy(state["optimizer"]))
         discriminator._generator.set_state(state["generator"])
         return discriminator

@@ -10,15 +10,15 @@ destination with ``os.replace`` (atomic on POSIX and Windows): a crash leaves ei
 never a half-written one, and the temporary file is removed on failure.
 """
 
-import contextlib
 import os
 import random
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
+
+from seqdex_drake.atomic import atomic_write
 
 FORMAT = "seqdex_drake.rl.checkpoint"
 VERSION = 1
@@ -66,14 +66,6 @@ def restore_rng_state(state: dict, generators: dict[str, torch.Generator | np.ra
             generator.bit_generator.state = state["generators"][name]
 
 
-def _fsync_directory(directory: Path) -> None:
-    """Makes a rename durable (POSIX); a no-op where directories cannot be opened (Windows)."""
-    with contextlib.suppress(OSError):
-        fd = os.open(directory, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
 
 
 def save_checkpoint(path: str | os.PathLike, checkpoint: dict[str, Any]) -> Path:
@@ -82,20 +74,8 @@ def save_checkpoint(path: str | os.PathLike, checkpoint: dict[str, Any]) -> Path
     The dict gets ``format`` and ``version`` keys. The parent directory is created if needed.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     payload = {"format": FORMAT, "version": VERSION, **checkpoint}
-    fd, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as file:
-            torch.save(payload, file)
-            file.flush()
-            os.fsync(file.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(temporary)
-        raise
-    _fsync_directory(path.parent)
+    atomic_write(path, lambda file: torch.save(payload, file))
     return path
 
 

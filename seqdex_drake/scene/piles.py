@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +18,7 @@ from pydrake.common import RandomGenerator
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.systems.analysis import Simulator
 
+from seqdex_drake.atomic import atomic_write
 from seqdex_drake.scene.objects import SceneObjects
 
 PILE_FILE_VERSION = 1
@@ -101,20 +101,11 @@ def _shuffle(items: list, generator: RandomGenerator) -> None:
 
 def SavePiles(path: str | Path, piles: np.ndarray, object_names: list[str], scenario_name: str) -> None:
     """Writes piles atomically (temporary file, fsync, rename) in the versioned format."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
-    try:
-        with os.fdopen(fd, "wb") as stream:
-            np.savez(stream, version=PILE_FILE_VERSION, q=np.asarray(piles, dtype=np.float64),
-                     object_names=np.array(object_names), scenario=np.array(scenario_name))
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    def write(stream) -> None:
+        np.savez(stream, version=PILE_FILE_VERSION, q=np.asarray(piles, dtype=np.float64),
+                 object_names=np.array(object_names), scenario=np.array(scenario_name))
+
+    os.chmod(atomic_write(path, write), 0o644)
 
 
 def LoadPiles(path: str | Path, object_names: list[str]) -> np.ndarray:
