@@ -97,3 +97,23 @@ def test_a_block_in_free_fall_fails_grasp():
     for _ in range(10):
         env.step(np.zeros(19))
     assert not env.task.is_success(env)
+
+
+def test_restoring_a_hand_off_state_sets_the_tasks_start_values():
+    source = make_env("tool_grasp")
+    source.reset(seed=1)
+    source.step(np.zeros(19))
+    state = source.get_state()  # Stands in for a tool Grasp terminal state (forward initialization).
+    target = make_env("tool_reorient")
+    target.reset(options={"initial_state": state})
+    flipped = target.goal[3:]
+    held = target.observation()[111 + 3:111 + 7]  # The tool's quaternion in the observation.
+    from seqdex_drake.tasks.rewards import quaternion_angle
+
+    assert quaternion_angle(flipped, held) == pytest.approx(np.pi, abs=1e-3)  # Goal: flipped about y.
+    grasp = make_env("grasp")
+    grasp.reset(seed=2)
+    grasp_state = grasp.get_state()
+    grasp.reset(seed=3)
+    grasp.reset(options={"initial_state": grasp_state})
+    assert grasp.task.start_height == pytest.approx(grasp.object_position()[2])

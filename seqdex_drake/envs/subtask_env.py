@@ -37,6 +37,8 @@ class EnvState:
     arm_target: np.ndarray
     hand_target: np.ndarray
     previous_action: np.ndarray
+    task: str = ""
+    """The sub-task that saved the state (a different one means a hand-off)."""
 
 
 class SubtaskEnv(gym.Env):
@@ -148,7 +150,7 @@ class SubtaskEnv(gym.Env):
         return EnvState(self.plant.GetPositions(self.plant_context).copy(),
                         self.plant.GetVelocities(self.plant_context).copy(), self.objects.get_state(self.context),
                         self.target_object, self.goal.copy(), self._arm_target.copy(), self._hand_target.copy(),
-                        self._previous_action.copy())
+                        self._previous_action.copy(), self.config.name)
 
     def set_state(self, state: EnvState) -> None:
         """Restores a saved state exactly (a few state writes; no re-simulation)."""
@@ -181,6 +183,7 @@ class SubtaskEnv(gym.Env):
             if not isinstance(initial_state, EnvState):
                 raise TypeError("options['initial_state'] must be an EnvState (env.get_state() or a buffer)")
             self.set_state(initial_state)
+            self.task.on_restore(self, initial_state.task)
         else:
             self.task.reset(self, self.np_random)
         # DR hook: physical parameters, pose noise, correlated noise (no-op with every group off).

@@ -58,6 +58,11 @@ class Task(abc.ABC):
     def reset(self, env, rng: np.random.Generator) -> None:
         """Samples the episode's initial state from the scenario's distribution (objects, arm, hand, target)."""
 
+    def on_restore(self, env, from_task: str) -> None:  # noqa: B027 (an optional hook, not abstract)
+        """Called after an episode starts from a given state saved by sub-task ``from_task`` (forward
+        initialization hands over another sub-task's terminal state): tasks that keep per-episode start values
+        (start height, start orientation, a goal) set them from that state here."""
+
     @abc.abstractmethod
     def reward_terms(self, env, action: np.ndarray) -> dict[str, float]:
         """The named reward terms of the current step."""

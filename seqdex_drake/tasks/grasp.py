@@ -22,6 +22,9 @@ class GraspTask(Task):
 
     def reset(self, env, rng) -> None:
         place_single_block(env, rng, ["upright"])
+        self.on_restore(env)
+
+    def on_restore(self, env, from_task: str = "") -> None:
         self.start_height = float(env.object_position()[2])
 
     def reward_terms(self, env, action):

@@ -24,6 +24,9 @@ class OrientTask(Task):
 
     def reset(self, env, rng) -> None:
         place_single_block(env, rng, ["upside_down", "side_left", "side_right"])
+        self.on_restore(env)
+
+    def on_restore(self, env, from_task: str = "") -> None:
         self.start_quaternion = env.object_pose().rotation().ToQuaternion().wxyz()
 
     def reward_terms(self, env, action):

@@ -23,6 +23,9 @@ class ToolGraspTask(Task):
 
     def reset(self, env, rng) -> None:
         place_tool_on_table(env, rng)
+        self.on_restore(env)
+
+    def on_restore(self, env, from_task: str = "") -> None:
         self.start_height = float(env.object_position()[2])
         self.start_quaternion = env.object_pose().rotation().ToQuaternion().wxyz()
 

@@ -42,9 +42,16 @@ class ToolReorientTask(Task):
         env.objects.park(env.context)
         env.set_target(name)
         synthesized_tool_grasp(env, name)
+        self.on_restore(env)
+
+    def on_restore(self, env, from_task: str = "") -> None:
+        """The goal: the tool's current pose flipped 180 deg about its long axis y, in place (kept when the
+        state is this task's own, e.g. a mid-episode state restored exactly)."""
+        if from_task == self.config.name:
+            return
         X_WT = env.object_pose()
         goal = RigidTransform(X_WT.rotation() @ RotationMatrix.MakeYRotation(3.141592653589793), X_WT.translation())
-        env.set_target(name, pose_vector(goal))
+        env.set_target(env.target_object, pose_vector(goal))
 
     def reward_terms(self, env, action):
         position, rotation = goal_errors(env)

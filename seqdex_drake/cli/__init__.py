@@ -1,0 +1,67 @@
+"""The ``seqdex`` command line (``seqdex train``, ``seqdex collect``) and what its subcommands share.
+
+``main`` parses the arguments and dispatches; ``train`` and ``collect`` implement the subcommands. This module
+holds the shared pieces: :class:`CliError` (a user-facing failure: message, exit code, no traceback), the
+sub-task chains, the task config a run uses (shortened episodes with ``--test``) and the observation spec
+recorded in terminal buffers.
+
+Exit codes: 0 success; 2 bad input (unknown task, missing or mismatched file, wrong flag combination);
+1 a failure while running (e.g. a simulator worker died).
+"""
+
+import dataclasses
+import json
+
+from seqdex_drake.chaining.spec import ObservationSpec
+
+#: The sub-task that follows each one in its chain (Building Blocks: search -> orient -> grasp -> insert;
+#: Tool Positioning: tool_grasp -> tool_reorient). The last task of a chain has no entry.
+NEXT_TASK = {"search": "orient", "orient": "grasp", "grasp": "insert", "tool_grasp": "tool_reorient"}
+#: The sub-task that precedes each one (the inverse of :data:`NEXT_TASK`).
+PREVIOUS_TASK = {target: source for source, target in NEXT_TASK.items()}
+
+#: Episode length of every sub-task under ``--test`` (a few seconds of simulation per run).
+TEST_EPISODE_LENGTH = 6
+
+#: The observation layout of the paper's tables (``seqdex_drake.systems.observations``).
+_BASE_LAYOUT = ("joint_q(23) joint_dq(23) fingertips(4x13) palm(13) object(13) previous_action(19) "
+                "motor_torque(16)")
+
+
+class CliError(Exception):
+    """A failure the user can fix: printed as ``seqdex <command>: error: <message>``, exit ``code``."""
+
+    def __init__(self, message: str, code: int = 2):
+        super().__init__(message)
+        self.code = code
+
+
+def task_config(task: str, test: bool):
+    """The :class:`~seqdex_drake.tasks.base.TaskConfig` of a run: the task's default, with episodes cut to
+    :data:`TEST_EPISODE_LENGTH` steps under ``--test``."""
+    from seqdex_drake.tasks.registry import default_config
+
+    config = default_config(task)
+    if test:
+        config = dataclasses.replace(config, episode_length=min(config.episode_length, TEST_EPISODE_LENGTH))
+    return config
+
+
+def config_dict(config) -> dict:
+    """A dataclass (nested ones included) as JSON-ready plain data (tuples become lists, numpy via ``tolist``)."""
+    return json.loads(json.dumps(dataclasses.asdict(config), default=_plain))
+
+
+def _plain(value):
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    raise TypeError(f"cannot write {type(value).__name__} to JSON")
+
+
+def observation_spec(task: str, dim: int) -> ObservationSpec:
+    """The spec of sub-task ``task``'s observations of size ``dim`` (goal and pixel parts as the table has)."""
+    from seqdex_drake.tasks.registry import REGISTRY
+
+    task_class = REGISTRY[task][1]
+    extras = (" goal(14)" if task_class.goal else "") + (" target_pixels(1)" if task_class.pixels else "")
+    return ObservationSpec(dim, f"{task}: {_BASE_LAYOUT}{extras}")

@@ -1,0 +1,86 @@
+"""``seqdex``: the command line entry point.
+
+Subcommands (each takes ``--run-dir``, ``--seed``, ``--resume`` and ``--test``)::
+
+    seqdex train --task grasp [--steps N] [--num-envs 2] [--initial-states BUFFER]
+    seqdex collect --task grasp --checkpoint RUN/last.pt --episodes N --out BUFFER [--keep-failures]
+
+``--test`` runs a tiny budget (episodes of a few steps, small networks, one PPO update, two collected
+episodes) for smoke tests and CI. Bad input exits with status 2 and a one-line message (no traceback); see
+:mod:`seqdex_drake.cli` for the exit codes. Also runnable as ``python -m seqdex_drake.cli.main``.
+"""
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from seqdex_drake.cli import CliError
+
+
+def _common(parser: argparse.ArgumentParser, tasks: list[str], resume_help: str) -> None:
+    """Adds the options every subcommand takes."""
+    parser.add_argument("--task", required=True, choices=tasks, metavar="TASK",
+                        help=f"the sub-task: {', '.join(tasks)}")
+    parser.add_argument("--run-dir", help="the run directory (default: runs/<task>)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the run (default: 0)")
+    parser.add_argument("--resume", action="store_true", help=resume_help)
+    parser.add_argument("--test", action="store_true", help="a tiny budget for smoke tests and CI")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``seqdex`` argument parser with its ``train`` and ``collect`` subcommands."""
+    from seqdex_drake.tasks.registry import task_names
+
+    tasks = task_names()
+    parser = argparse.ArgumentParser(prog="seqdex", description="Sequential Dexterity on Drake: train sub-task "
+                                     "policies and chain them.")
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    train = commands.add_parser("train", help="train a sub-task policy with PPO",
+                                description="PPO on one sub-task's process vector env.")
+    _common(train, tasks, "continue the run in --run-dir from its last.pt (same counters, optimizer, RNG)")
+    train.add_argument("--steps", type=int, help="total environment steps of the run (summed over envs)")
+    train.add_argument("--num-envs", type=int, default=2, help="parallel env worker processes (default: 2)")
+    train.add_argument("--initial-states", metavar="BUFFER",
+                       help="start episodes from the previous sub-task's terminal buffer (seqdex collect)")
+
+    collect = commands.add_parser("collect", help="roll out a trained policy into the next task's terminal buffer",
+                                  description="Deterministic rollouts of a trained sub-task policy; successful "
+                                  "terminal states go to a terminal buffer for the next sub-task.")
+    _common(collect, tasks, "append to the existing --out buffer instead of replacing it")
+    collect.add_argument("--checkpoint", help="the policy checkpoint (default: <run-dir>/last.pt)")
+    collect.add_argument("--episodes", type=int, help="episodes to roll out (default: 100; 2 with --test)")
+    collect.add_argument("--out", help="the buffer file (default: <run-dir>/terminal_<task>_to_<next>.npz)")
+    collect.add_argument("--keep-failures", action="store_true", help="also record unsuccessful episodes")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Parses ``argv`` (default: ``sys.argv[1:]``), runs the subcommand and returns its exit code.
+
+    Argument errors (an unknown task included) exit through argparse with status 2; a :class:`CliError`
+    prints ``seqdex <command>: error: <message>`` to stderr and returns its code; a failed env worker
+    (:class:`~seqdex_drake.envs.vector.WorkerError`, with the worker's traceback) returns 1.
+    """
+    from seqdex_drake.envs.vector import WorkerError
+
+    args = build_parser().parse_args(argv)
+    if args.command == "train":
+        from seqdex_drake.cli.train import run
+    else:
+        from seqdex_drake.cli.collect import run
+    try:
+        return run(args)
+    except CliError as error:
+        print(f"seqdex {args.command}: error: {error}", file=sys.stderr)
+        return error.code
+    except WorkerError as error:  # A simulator worker failed: its own traceback is the useful part.
+        print(f"seqdex {args.command}: error: {error}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"seqdex {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

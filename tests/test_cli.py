@@ -1,0 +1,156 @@
+"""The ``seqdex`` command line: train, resume, collect and the error paths, end to end on the grasp sub-task.
+
+Everything runs with ``--test`` (episodes of a few steps, 64-64 networks, one PPO update per call).
+"""
+
+import json
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from seqdex_drake.chaining.terminal_buffer import TerminalBuffer
+from seqdex_drake.cli import TEST_EPISODE_LENGTH, observation_spec, task_config
+from seqdex_drake.cli.main import main
+from seqdex_drake.rl.config import PPOConfig
+from seqdex_drake.tasks.registry import task_names
+
+
+def _steps(path) -> int:
+    return torch.load(path, weights_only=True)["counters"]["global_step"]
+
+
+@pytest.fixture(scope="module")
+def grasp_run(tmp_path_factory):
+    """A grasp run directory after ``seqdex train --task grasp --test`` (two envs, one update)."""
+    run_dir = tmp_path_factory.mktemp("cli") / "grasp"
+    assert main(["train", "--task", "grasp", "--test", "--run-dir", str(run_dir), "--num-envs", "2"]) == 0
+    return run_dir
+
+
+def test_train_writes_run_directory(grasp_run):
+    assert (grasp_run / "last.pt").is_file()
+    assert _steps(grasp_run / "last.pt") == 16  # 2 envs x horizon 8.
+    record = json.loads((grasp_run / "config.json").read_text())
+    assert record["task"] == "grasp" and record["test"] is True and record["initial_states"] is None
+    assert record["ppo"]["gamma"] == 0.9 and record["ppo"]["num_envs"] == 2  # Paper's grasp column.
+    assert record["task_config"]["episode_length"] == TEST_EPISODE_LENGTH
+    assert "building_blocks" in (grasp_run / "scenario.yaml").read_text()
+    assert list(grasp_run.glob("events.out.tfevents.*")), "no TensorBoard log"
+
+
+def test_resume_continues_counters(grasp_run, tmp_path, capsys):
+    run_dir = tmp_path / "resumed"
+    shutil.copytree(grasp_run, run_dir)
+    before = torch.load(run_dir / "last.pt", weights_only=True)["counters"]
+    assert main(["train", "--task", "grasp", "--test", "--run-dir", str(run_dir), "--resume"]) == 0
+    after = torch.load(run_dir / "last.pt", weights_only=True)["counters"]
+    assert after["global_step"] == before["global_step"] + 16
+    assert after["num_updates"] == before["num_updates"] + 1
+    assert "steps 16 -> 32" in capsys.readouterr().out
+    # Starting afresh over an existing run is refused; so is resuming with another task config.
+    assert main(["train", "--task", "grasp", "--test", "--run-dir", str(run_dir)]) == 2
+    assert "--resume" in capsys.readouterr().err
+    assert main(["train", "--task", "grasp", "--run-dir", str(run_dir), "--resume"]) == 2
+    assert "task config differs" in capsys.readouterr().err
+    assert _steps(run_dir / "last.pt") == 32
+
+
+def test_collect_writes_loadable_buffer(grasp_run, tmp_path, capsys):
+    out = tmp_path / "grasp_to_insert.npz"
+    args = ["collect", "--task", "grasp", "--test", "--checkpoint", str(grasp_run / "last.pt"), "--out", str(out)]
+    assert main(args) == 0
+    printed = capsys.readouterr().out
+    successes = int(printed.split(" successes out of 2 ")[0].split()[-1])
+    buffer = TerminalBuffer.load(out, expected_task="insert", expected_source="grasp")
+    assert len(buffer) == successes and buffer.successes.all()  # An untrained policy may have none: empty file.
+    assert buffer.history == 10 and buffer.obs_spec.dim == 159
+    if successes == 0:
+        assert "no successful episode" in printed
+    # --keep-failures --resume appends every episode to the same file.
+    assert main(args + ["--keep-failures", "--resume", "--seed", "5"]) == 0
+    capsys.readouterr()
+    buffer = TerminalBuffer.load(out, expected_task="insert")
+    assert len(buffer) == 2 * successes + (2 - successes)
+    assert buffer.histories.shape == (len(buffer), 10, 159) and np.isfinite(buffer.returns).all()
+
+
+def test_collect_refuses_last_task_and_missing_checkpoint(tmp_path, capsys):
+    assert main(["collect", "--task", "insert", "--test", "--run-dir", str(tmp_path)]) == 2
+    assert "last sub-task" in capsys.readouterr().err
+    missing = tmp_path / "nothing" / "last.pt"
+    assert main(["collect", "--task", "grasp", "--test", "--checkpoint", str(missing)]) == 2
+    err = capsys.readouterr().err
+    assert str(missing) in err and "does not exist" in err and "Traceback" not in err
+    assert not list(tmp_path.glob("**/*.npz"))
+
+
+def test_resume_without_checkpoint_is_a_clear_error(tmp_path, capsys):
+    assert main(["train", "--task", "grasp", "--test", "--run-dir", str(tmp_path / "none"), "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "no checkpoint" in err and "without --resume" in err and "Traceback" not in err
+
+
+def test_unknown_task_exits_2_listing_tasks(tmp_path):
+    result = subprocess.run([sys.executable, "-m", "seqdex_drake.cli.main", "train", "--task", "juggle", "--test",
+                             "--run-dir", str(tmp_path)], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    assert "Traceback" not in result.stderr and "juggle" in result.stderr
+    assert all(name in result.stderr for name in task_names())
+
+
+def _tool_grasp_buffer(path):
+    """A one-entry tool_grasp -> tool_reorient buffer holding a tool_grasp env state a few steps after reset."""
+    from seqdex_drake.tasks.registry import make_env
+
+    env = make_env("tool_grasp", task_config("tool_grasp", True))
+    observation, _ = env.reset(seed=3)
+    observations = [observation] + [env.step(np.zeros(19))[0] for _ in range(10)]
+    buffer = TerminalBuffer("tool_grasp", "tool_reorient", env.config.scenario,
+                            observation_spec("tool_grasp", observation.size), 10)
+    state = env.get_state()
+    buffer.append(state, np.stack(observations), 1.0, True)
+    buffer.save(path)
+    return state
+
+
+def test_initial_states_restart_every_episode(tmp_path):
+    from seqdex_drake.cli.train import InitialStateVectorEnv, load_initial_states
+    from seqdex_drake.envs.vector import ProcessVectorEnv
+
+    state = _tool_grasp_buffer(tmp_path / "tool.npz")
+    buffer = load_initial_states(str(tmp_path / "tool.npz"), "tool_reorient")
+    with ProcessVectorEnv("tool_reorient", 1, seed=0, config=task_config("tool_reorient", True)) as inner:
+        env = InitialStateVectorEnv(inner, buffer, seed=0)
+        env.reset(seed=0)
+        np.testing.assert_allclose(inner.get_states()[0].plant_positions, state.plant_positions)
+        for step in range(TEST_EPISODE_LENGTH):
+            _, _, terminated, truncated, infos = env.step(np.zeros((1, 19)))
+            if step < TEST_EPISODE_LENGTH - 1:
+                assert not np.any(terminated | truncated)
+                assert not np.allclose(inner.get_states()[0].plant_positions, state.plant_positions)
+        assert truncated[0] and "final_observation" in infos[0]
+        np.testing.assert_allclose(inner.get_states()[0].plant_positions, state.plant_positions)
+
+
+def test_train_with_initial_states(tmp_path, capsys):
+    buffer = str(tmp_path / "tool.npz")
+    _tool_grasp_buffer(buffer)
+    run_dir = tmp_path / "reorient_fi"
+    assert main(["train", "--task", "tool_reorient", "--test", "--run-dir", str(run_dir), "--initial-states",
+                 buffer]) == 0
+    assert json.loads((run_dir / "config.json").read_text())["initial_states"] == buffer
+    assert _steps(run_dir / "last.pt") == 2 * PPOConfig.for_task("tool_reorient").horizon
+    # A buffer for another task, a missing one (names the collect command), a first task of a chain.
+    assert main(["train", "--task", "orient", "--test", "--run-dir", str(tmp_path / "o"), "--initial-states",
+                 buffer]) == 2
+    assert "target task 'tool_reorient'" in capsys.readouterr().err
+    assert main(["train", "--task", "insert", "--test", "--run-dir", str(tmp_path / "i"), "--initial-states",
+                 str(tmp_path / "missing.npz")]) == 2
+    assert "seqdex collect --task grasp" in capsys.readouterr().err
+    assert main(["train", "--task", "search", "--test", "--run-dir", str(tmp_path / "s"), "--initial-states",
+                 buffer]) == 2
+    assert "first sub-task" in capsys.readouterr().err
