@@ -1,0 +1,327 @@
+"""The chained sub-policies as one controller Diagram that plugs into the station by port name.
+
+:func:`MakeChainController` builds, for a list of stages (registered task name, policy checkpoint or None):
+one :class:`~seqdex_drake.systems.observations.ObservationAssembler` per observation layout, one
+:class:`~seqdex_drake.systems.policy.PolicySystem` per stage, the
+:class:`~seqdex_drake.systems.switcher.FeasibilitySwitcher`, the
+:class:`~seqdex_drake.systems.osc.OperationalSpaceController` (hand centre to 5 cm above the target while
+it is farther than 5 cm), a :class:`~seqdex_drake.systems.chain_parts.StageRouter`, the approach target and
+the wrist IK (:class:`~seqdex_drake.systems.chain_parts.WristTargetIntegrator`). Ports, station-side names:
+
+Inputs
+    ``franka.state``, ``allegro.state``, ``allegro.net_actuation``, ``body_poses``, ``body_spatial_velocities``,
+    ``label_image`` (only with a Search stage: the station's ``<camera>.label_image``), ``stage_success``
+    (optional, 1: the executing stage succeeded; leave unconnected to use the step budgets only).
+Outputs
+    ``franka.desired_state`` (14), ``allegro.desired_state`` (32), ``active_stage`` (1, 0-based index into
+    ``stages``), ``feasibility_scores`` (K, c^i; NaN where undefined), ``executing_stage`` (1),
+    ``approach_active`` (1), ``action`` (19, applied), ``switches_used`` (1), ``approach_target`` (3).
+
+The chain's target (block body index, goal pose) is a parameter of the context: call :func:`SetChainTarget`
+after creating the context and before simulating. :func:`LoadChainCheckpoints` finds a chain run's files.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from pydrake.systems.framework import Context, Diagram, DiagramBuilder
+
+from seqdex_drake.chaining.feasibility_io import FeasibilityFile, load_feasibility
+from seqdex_drake.rl.networks import ActorCritic
+from seqdex_drake.robots.allegro import p_PalmHc_Palm
+from seqdex_drake.robots.arm_ik import PalmIK
+from seqdex_drake.scenario import Scenario
+from seqdex_drake.station import AddStationPlant, MakeControllerPlant
+from seqdex_drake.systems.chain_parts import ApproachTarget, ChainMarker, StageRouter, WristTargetIntegrator
+from seqdex_drake.systems.observations import ObservationAssembler, ObservationTarget
+from seqdex_drake.systems.osc import OperationalSpaceController, OscParams
+from seqdex_drake.systems.policy import PAPER_HIDDEN_SIZES, PolicyParams, PolicySystem
+from seqdex_drake.systems.switcher import FeasibilitySwitcher, SwitcherParams
+
+STATION_INPUTS = ("franka.state", "allegro.state", "allegro.net_actuation", "body_poses", "body_spatial_velocities")
+"""Station outputs every chain controller reads (plus ``<camera>.label_image`` with a Search stage)."""
+
+
+@dataclasses.dataclass
+class ChainParams:
+    """Parameters of :func:`MakeChainController`."""
+
+    ema: float | None = None
+    """EMA factor of every policy's hand action; None: each task's training value (``TaskConfig.ema``). The
+    paper deploys with 0.2 (``seqdex_drake.systems.policy.DEPLOYMENT_EMA``)."""
+    switcher: SwitcherParams = dataclasses.field(default_factory=SwitcherParams)
+    """Switch cap, per-stage step budgets (default: each task's ``episode_length``), decision rule."""
+    osc: OscParams | None = None
+    """Approach controller parameters; None: ``OscParams`` with the controlled point at the hand centre (the
+    point the sub-task resets place 5 cm above the target)."""
+    untrained_seed: int = 0
+    """Stage i without a checkpoint gets a freshly initialised policy seeded ``untrained_seed + i``."""
+    untrained_hidden_sizes: tuple[int, ...] = PAPER_HIDDEN_SIZES
+    """Actor hidden sizes of untrained policies."""
+
+
+@dataclasses.dataclass
+class ChainCheckpoints:
+    """What :func:`LoadChainCheckpoints` found; pass ``stages`` and ``feasibility`` to :func:`MakeChainController`."""
+
+    tasks: list[str]
+    """The chain's tasks, in order."""
+    policies: list[Path | None]
+    """Per stage, the policy checkpoint (``best.pt``, else ``last.pt``), or None (untrained)."""
+    feasibility: list[Path | None]
+    """Per stage, its feasibility file, or None (stage 0 never has one)."""
+    missing: list[str]
+    """One human-readable line per missing file (print them)."""
+
+    @property
+    def stages(self) -> list[tuple[str, Path | None]]:
+        return list(zip(self.tasks, self.policies, strict=True))
+
+
+def LoadChainCheckpoints(run_dir: str | os.PathLike, tasks: Sequence[str]) -> ChainCheckpoints:
+    """Finds a chain run's files: ``<run_dir>/stages/<task>/best.pt`` (else ``last.pt``) per stage and
+    ``<run_dir>/feasibility/<task>.pt`` (the F predicting ``<task>``'s return from the previous stage's
+    history) for every stage after the first. Missing files are listed in ``missing``, not raised.
+
+    Raises:
+        FileNotFoundError: ``run_dir`` is not a directory.
+        ValueError: an unknown task name (the message lists the registered ones) or an empty chain.
+    """
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise FileNotFoundError(f"chain run directory {run_dir} does not exist")
+    tasks = [_check_task(task) for task in tasks]
+    if not tasks:
+        raise ValueError("a chain needs at least one task")
+    policies, feasibility, missing = [], [], []
+    for i, task in enumerate(tasks):
+        candidates = [run_dir / "stages" / task / name for name in ("best.pt", "last.pt")]
+        found = next((path for path in candidates if path.is_file()), None)
+        policies.append(found)
+        if found is None:
+            missing.append(f"stage {i} ({task}): no policy checkpoint {candidates[0]} or {candidates[1].name}; "
+                           f"the stage runs an untrained policy")
+        path = run_dir / "feasibility" / f"{task}.pt"
+        feasibility.append(path if i > 0 and path.is_file() else None)
+        if i > 0 and not path.is_file():
+            missing.append(f"stage {i} ({task}): no feasibility function {path}; switching into it follows the "
+                           f"sequential rule (step budget / stage_success)")
+    return ChainCheckpoints(tasks, policies, feasibility, missing)
+
+
+def _check_task(task: str) -> str:
+    from seqdex_drake.tasks.registry import REGISTRY
+
+    if task not in REGISTRY:
+        raise ValueError(f"unknown task {task!r} in the chain; registered tasks: {', '.join(REGISTRY)}")
+    return task
+
+
+def _layout(task: str) -> tuple[bool, bool]:
+    from seqdex_drake.tasks.registry import REGISTRY
+
+    task_class = REGISTRY[task][1]
+    return bool(task_class.goal), bool(task_class.pixels)
+
+
+def _make_policy(index: int, task: str, policy, size: int, params: PolicyParams, chain: ChainParams) -> PolicySystem:
+    if policy is None:
+        return PolicySystem.untrained(size, chain.untrained_seed + index, params, chain.untrained_hidden_sizes)
+    if isinstance(policy, ActorCritic):
+        return PolicySystem(policy, size, params, trained=True, source=f"in-memory model of stage {index} ({task})")
+    if isinstance(policy, str | os.PathLike):
+        return PolicySystem.from_checkpoint(policy, size, params)
+    raise TypeError(f"stage {index} ({task}): the policy must be a checkpoint path, an ActorCritic or None, "
+                    f"got {type(policy).__name__}")
+
+
+def _load_f(index: int, tasks: list[str], entry, sizes: list[int]) -> FeasibilityFile | None:
+    """Stage ``index``'s F, checked against the chain (target task, source task, observation size)."""
+    if entry is None:
+        return None
+    if index == 0:
+        raise ValueError(f"stage 0 ({tasks[0]}) has no predecessor, so feasibility[0] must be None")
+    task, previous = tasks[index], tasks[index - 1]
+    if isinstance(entry, str | os.PathLike):
+        from seqdex_drake.cli import observation_spec
+
+        where = str(entry)
+        entry = load_feasibility(entry, observation_spec(previous, sizes[index - 1]), expected_target_task=task)
+    else:
+        where = f"the in-memory feasibility function of stage {index}"
+    source = getattr(entry, "source_task", previous)
+    if source != previous:
+        raise ValueError(f"{where} scores histories of task {source!r}, but stage {index} ({task}) follows "
+                         f"{previous!r}; use the F trained on {previous} -> {task} transitions")
+    return entry
+
+
+def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]], feasibility: Sequence | None = None,
+                        params: ChainParams | None = None, meshcat=None) -> Diagram:
+    """Builds the chain controller Diagram for ``scenario`` (see the module docstring for its ports).
+
+    Args:
+        scenario: the scenario of the station it will drive (plant layout, control period, gains, home).
+        stages: K pairs (registered task name, policy): a PPO checkpoint path, an in-memory ``ActorCritic``, or
+            None for an untrained policy (``PolicySystem.trained`` is False; the chain still runs).
+        feasibility: None (no F at all: sequential execution) or K entries, entry 0 None, entry i a path to
+            F^i's file, a ``FeasibilityFile``, or None.
+        params: EMA, switcher, OSC and untrained-policy settings; defaults to ``ChainParams()``.
+        meshcat: optional; draws the approach target coloured by the executing stage.
+
+    Raises:
+        ValueError: an unknown task, a Search stage without a label camera in the scenario, a checkpoint or F
+            whose observation size, task or spec does not fit its stage (the message names the file).
+        FileNotFoundError: a checkpoint or F path that does not exist.
+    """
+    from seqdex_drake.tasks.registry import default_config
+
+    params = params or ChainParams()
+    tasks = [_check_task(task) for task, _ in stages]
+    if not tasks:
+        raise ValueError("a chain needs at least one stage")
+    feasibility = [None] * len(tasks) if feasibility is None else list(feasibility)
+    if len(feasibility) != len(tasks):
+        raise ValueError(f"feasibility needs one entry per stage ({len(tasks)}), got {len(feasibility)}")
+    layouts = [_layout(task) for task in tasks]
+    cameras = [name for name, camera in scenario.cameras.items() if camera.label]
+    if any(pixels for _, pixels in layouts) and not cameras:
+        raise ValueError("a Search stage needs a camera with label images in the scenario (e.g. "
+                         "building_blocks/search); this scenario has none")
+    configs = [default_config(task) for task in tasks]
+    period = scenario.control_period
+
+    builder = DiagramBuilder()
+    plant, _ = AddStationPlant(DiagramBuilder(), scenario)  # The station's plant layout, for body lookups only.
+    assemblers = {}
+    for goal, pixels in dict.fromkeys(layouts):
+        name = "observation." + ("goal" if goal else "pixels" if pixels else "base")
+        assemblers[(goal, pixels)] = builder.AddNamedSystem(name, ObservationAssembler(plant, goal, pixels))
+    sizes = [assemblers[layout].size for layout in layouts]
+    policies = []
+    for i, ((task, policy), config) in enumerate(zip(stages, configs, strict=True)):
+        ema = config.ema if params.ema is None else params.ema
+        policy_params = PolicyParams(control_period=period, ema=ema, wrist_step=config.wrist_step)
+        system = _make_policy(i, task, policy, sizes[i], policy_params, params)
+        policies.append(builder.AddNamedSystem(f"policy.{i}", system))
+    f_files = [_load_f(i, tasks, entry, sizes) for i, entry in enumerate(feasibility)]
+    switcher = builder.AddNamedSystem("switcher", FeasibilitySwitcher(
+        f_files, sizes, [config.episode_length for config in configs], period, params.switcher))
+    router = builder.AddNamedSystem("router", StageRouter(len(tasks), period))
+    approach = builder.AddNamedSystem("approach_target", ApproachTarget(plant, [goal for goal, _ in layouts]))
+    osc_params = params.osc or OscParams(p_PalmPc_Palm=tuple(p_PalmHc_Palm), hover_height=configs[0].hover_height)
+    controller_plant = MakeControllerPlant(scenario)
+    home = np.asarray(scenario.robot.arm_home, dtype=float)
+    osc = builder.AddNamedSystem("osc", OperationalSpaceController(
+        controller_plant, period, scenario.robot.arm_kp, scenario.robot.arm_kd, osc_params, home_q=home))
+    ik = PalmIK(MakeControllerPlant(scenario), p_PalmC_Palm=p_PalmHc_Palm)
+    wrist = builder.AddNamedSystem("wrist_ik", WristTargetIntegrator(ik, ik.palm_pose(home).rotation(), period))
+
+    # Station-side inputs, each exported once and fanned out.
+    consumers = {name: [a.GetInputPort(name) for a in assemblers.values()] for name in STATION_INPUTS}
+    consumers["franka.state"] += [osc.GetInputPort("franka.state"), wrist.GetInputPort("franka.state")]
+    consumers["body_poses"].append(approach.GetInputPort("body_poses"))
+    if any(pixels for _, pixels in layouts):
+        consumers["label_image"] = [a.GetInputPort("label_image") for (_, pixels), a in assemblers.items() if pixels]
+    consumers["stage_success"] = [switcher.GetInputPort("stage_success")]
+    for name, ports in consumers.items():
+        builder.ExportInput(ports[0], name)
+        for port in ports[1:]:
+            builder.ConnectInput(name, port)
+
+    for assembler in assemblers.values():
+        builder.Connect(router.GetOutputPort("raw_action"), assembler.GetInputPort("previous_action"))
+    for i, policy in enumerate(policies):
+        builder.Connect(assemblers[layouts[i]].GetOutputPort("observation"), policy.GetInputPort("observation"))
+        builder.Connect(router.GetOutputPort(f"enable.{i}"), policy.GetInputPort("active"))
+        builder.Connect(router.GetOutputPort("raw_action"), policy.GetInputPort("previous_action"))
+        builder.Connect(router.GetOutputPort("action"), policy.GetInputPort("previous_filtered_action"))
+        for name in ("action", "raw_action", "hand_target", "wrist_translation"):
+            builder.Connect(policy.GetOutputPort(name), router.GetInputPort(f"{name}.{i}"))
+    for i in range(1, len(tasks)):
+        if f_files[i] is not None:
+            builder.Connect(assemblers[layouts[i - 1]].GetOutputPort("observation"),
+                            switcher.GetInputPort(f"observation.{i - 1}"))
+    builder.Connect(osc.GetOutputPort("approach_active"), switcher.GetInputPort("approach_active"))
+    builder.Connect(switcher.GetOutputPort("active_stage"), router.GetInputPort("stage"))
+    builder.Connect(osc.GetOutputPort("approach_active"), router.GetInputPort("approach_active"))
+    builder.Connect(switcher.GetOutputPort("active_stage"), approach.GetInputPort("stage"))
+    builder.Connect(approach.GetOutputPort("target_position"), osc.GetInputPort("target_position"))
+    builder.Connect(osc.GetOutputPort("franka.desired_state"), wrist.GetInputPort("osc.desired_state"))
+    builder.Connect(router.GetOutputPort("wrist_translation"), wrist.GetInputPort("wrist_translation"))
+    builder.Connect(router.GetOutputPort("policy_in_charge"), wrist.GetInputPort("policy_in_charge"))
+    if meshcat is not None:
+        marker = builder.AddNamedSystem("marker", ChainMarker(meshcat))
+        builder.Connect(approach.GetOutputPort("target_position"), marker.GetInputPort("target_position"))
+        builder.Connect(router.GetOutputPort("executing_stage"), marker.GetInputPort("stage"))
+
+    for name, port in (("franka.desired_state", wrist.GetOutputPort("franka.desired_state")),
+                       ("allegro.desired_state", router.GetOutputPort("allegro.desired_state")),
+                       ("active_stage", switcher.GetOutputPort("active_stage")),
+                       ("feasibility_scores", switcher.GetOutputPort("feasibility_scores")),
+                       ("executing_stage", router.GetOutputPort("executing_stage")),
+                       ("approach_active", osc.GetOutputPort("approach_active")),
+                       ("action", router.GetOutputPort("action")),
+                       ("switches_used", switcher.GetOutputPort("switches_used")),
+                       ("approach_target", approach.GetOutputPort("target_position"))):
+        builder.ExportOutput(port, name)
+    diagram = builder.Build()
+    diagram.set_name("chain_controller")
+    return diagram
+
+
+def ConnectChainController(builder: DiagramBuilder, station: Diagram, controller: Diagram) -> None:
+    """Connects ``controller`` (from :func:`MakeChainController`) to ``station`` (from ``MakeStation``) by name:
+    every controller input except ``stage_success`` from the station output of the same name (``label_image``
+    from the station's only ``<camera>.label_image``), and the two desired states back."""
+    for index in range(controller.num_input_ports()):
+        name = controller.get_input_port(index).get_name()
+        if name == "stage_success":
+            continue
+        if name == "label_image":
+            found = [station.get_output_port(i).get_name() for i in range(station.num_output_ports())
+                     if station.get_output_port(i).get_name().endswith(".label_image")]
+            if len(found) != 1:
+                raise ValueError(f"the chain's Search stage needs exactly one '<camera>.label_image' station "
+                                 f"output, found {found or 'none'}; connect 'label_image' yourself")
+            name_out = found[0]
+        else:
+            name_out = name
+        builder.Connect(station.GetOutputPort(name_out), controller.get_input_port(index))
+    for name in ("franka.desired_state", "allegro.desired_state"):
+        builder.Connect(controller.GetOutputPort(name), station.GetInputPort(name))
+
+
+def SetChainTarget(controller: Diagram, root_context: Context, object_body: int, goal: np.ndarray | None = None,
+                   label: int | None = None) -> None:
+    """Sets the chain's target in ``root_context`` (the context of the Diagram holding ``controller``, or of
+    ``controller`` itself): the target object's body index in the station's plant (e.g.
+    ``int(plant.GetBodyByName("block_2").index())``), its goal pose ``[x, y, z, qw, qx, qy, qz]`` (stages
+    with a goal: Insert, tool Reorient; also the approach target of those stages) and its render label
+    (default: the body index, which is how the station's plant labels geometry)."""
+    target = ObservationTarget(object_body=int(object_body), label=int(object_body if label is None else label))
+    if goal is not None:
+        goal = np.asarray(goal, dtype=float)
+        if goal.shape != (7,) or not np.all(np.isfinite(goal)):
+            raise ValueError(f"goal must be a finite pose [x, y, z, qw, qx, qy, qz], got {goal}")
+        target.goal = goal
+    approach = controller.GetSubsystemByName("approach_target")
+    approach.set_target(approach.GetMyMutableContextFromRoot(root_context), target)
+    for name in ("observation.base", "observation.goal", "observation.pixels"):
+        if controller.HasSubsystemNamed(name):
+            assembler = controller.GetSubsystemByName(name)
+            assembler.set_target(assembler.GetMyMutableContextFromRoot(root_context), target)
+
+
+def GetChainPolicies(controller: Diagram) -> list[PolicySystem]:
+    """The controller's PolicySystems in stage order (``trained`` and ``source`` say what each one runs)."""
+    policies, i = [], 0
+    while controller.HasSubsystemNamed(f"policy.{i}"):
+        policies.append(controller.GetSubsystemByName(f"policy.{i}"))
+        i += 1
+    return policies

@@ -1,0 +1,221 @@
+"""Small systems the chain controller wires between the policies, the switcher, the OSC and the station.
+
+- :class:`StageRouter`: enables the executing stage's policy and routes its commands to the hand.
+- :class:`ApproachTarget`: the point the approach controller hovers over (the target object, or the goal for
+  stages with a goal pose), from the chain's :class:`~seqdex_drake.systems.observations.ObservationTarget`.
+- :class:`WristTargetIntegrator`: the arm's PD targets: the OSC command while it is in charge, else the wrist
+  translation integrated by damped least-squares IK from the previous arm *target* (as the environments do).
+- :class:`ChainMarker`: an optional Meshcat sphere at the approach target, coloured by the executing stage.
+
+Timing. Every system ticks at the control period with offset 0, so all read the values held before the tick.
+The router latches the stage the switcher chose at the previous tick; its ``enable.<i>`` outputs give the
+policies the same stage, so the routed commands always come from the policy that just ran. A stage chosen at
+tick k therefore acts from tick k + 1 (one control period of switching latency).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import Rgba, Sphere
+from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import BodyIndex
+from pydrake.systems.framework import BasicVector, Context, DiscreteValues, EventStatus, LeafSystem
+
+from seqdex_drake.robots.arm_ik import PalmIK
+from seqdex_drake.systems.observations import ObservationTarget
+from seqdex_drake.systems.policy import ACTION_SIZE, HAND_SIZE
+
+NUM_ARM = 7
+_STAGE_COLORS = [Rgba(0.9, 0.3, 0.2, 0.8), Rgba(0.95, 0.75, 0.1, 0.8), Rgba(0.2, 0.7, 0.3, 0.8),
+                 Rgba(0.2, 0.45, 0.9, 0.8), Rgba(0.6, 0.3, 0.8, 0.8), Rgba(0.3, 0.8, 0.8, 0.8)]
+
+
+class StageRouter(LeafSystem):
+    """Enables one policy at a time and routes its held commands out.
+
+    Input ports: ``stage`` (1, the switcher's ``active_stage``), ``approach_active`` (1, the OSC's flag),
+    and per stage i: ``action.<i>``, ``raw_action.<i>`` (19), ``hand_target.<i>`` (16), ``wrist_translation.<i>``
+    (3) from that stage's :class:`~seqdex_drake.systems.policy.PolicySystem`.
+
+    Output ports: ``enable.<i>`` (1: stage i is chosen and no approach runs), the routed ``action``,
+    ``raw_action``, ``hand_target``, ``wrist_translation``, ``allegro.desired_state`` (32: hand target, zero
+    velocities), ``policy_in_charge`` (1) and ``executing_stage`` (1: the stage whose policy ran last tick).
+
+    Args:
+        num_stages: K.
+        control_period: seconds between updates.
+    """
+
+    def __init__(self, num_stages: int, control_period: float):
+        super().__init__()
+        self.num_stages = int(num_stages)
+        self._stage_port = self.DeclareVectorInputPort("stage", 1)
+        self._approach_port = self.DeclareVectorInputPort("approach_active", 1)
+        self._ports = {name: [self.DeclareVectorInputPort(f"{name}.{i}", size) for i in range(num_stages)]
+                       for name, size in (("action", ACTION_SIZE), ("raw_action", ACTION_SIZE),
+                                          ("hand_target", HAND_SIZE), ("wrist_translation", 3))}
+        self._state_index = self.DeclareDiscreteState(np.zeros(2))  # executing stage, policy in charge
+        state = self.discrete_state_ticket(self._state_index)
+        choice = {self._stage_port.ticket(), self._approach_port.ticket()}
+        for i in range(num_stages):
+            self.DeclareVectorOutputPort(f"enable.{i}", 1, lambda context, output, i=i: self._calc_enable(
+                context, output, i), prerequisites_of_calc=choice)
+        for name, ports in self._ports.items():
+            tickets = {state} | {port.ticket() for port in ports}
+            self.DeclareVectorOutputPort(name, ports[0].size(), lambda context, output, name=name: output.SetFromVector(
+                self._routed(context, name)), prerequisites_of_calc=tickets)
+        hand_tickets = {state} | {port.ticket() for port in self._ports["hand_target"]}
+        self.DeclareVectorOutputPort("allegro.desired_state", 2 * HAND_SIZE, self._calc_hand_state,
+                                     prerequisites_of_calc=hand_tickets)
+        self.DeclareVectorOutputPort("policy_in_charge", 1, lambda context, output: output.SetAtIndex(
+            0, context.get_discrete_state(self._state_index).GetAtIndex(1)), prerequisites_of_calc={state})
+        self.DeclareVectorOutputPort("executing_stage", 1, lambda context, output: output.SetAtIndex(
+            0, context.get_discrete_state(self._state_index).GetAtIndex(0)), prerequisites_of_calc={state})
+        self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
+        self.DeclarePeriodicDiscreteUpdateEvent(control_period, 0.0, self._update)
+
+    def _choice(self, context: Context) -> tuple[int, bool]:
+        stage = int(round(self._stage_port.Eval(context)[0]))
+        if not 0 <= stage < self.num_stages:
+            raise RuntimeError(f"StageRouter: stage {stage} is outside 0..{self.num_stages - 1}")
+        return stage, self._approach_port.Eval(context)[0] < 0.5
+
+    def _calc_enable(self, context: Context, output: BasicVector, i: int) -> None:
+        stage, in_charge = self._choice(context)
+        output.SetAtIndex(0, float(in_charge and stage == i))
+
+    def _routed(self, context: Context, name: str) -> np.ndarray:
+        stage = int(context.get_discrete_state(self._state_index).GetAtIndex(0))
+        return self._ports[name][stage].Eval(context)
+
+    def _calc_hand_state(self, context: Context, output: BasicVector) -> None:
+        output.SetFromVector(np.r_[self._routed(context, "hand_target"), np.zeros(HAND_SIZE)])
+
+    def _initialize(self, context: Context, discrete_state: DiscreteValues) -> None:
+        discrete_state.set_value(self._state_index, np.zeros(2))
+
+    def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
+        stage, in_charge = self._choice(context)
+        discrete_state.set_value(self._state_index, np.array([stage, float(in_charge)]))
+
+
+class ApproachTarget(LeafSystem):
+    """The approach controller's target: the goal position for stages with a goal pose, else the target
+    object's centre of mass (world, m).
+
+    Input ports: ``body_poses`` (the station's), ``stage`` (1). Output port: ``target_position`` (3).
+    The chain target is an abstract parameter (:meth:`set_target`), shared with the observation assemblers.
+
+    Args:
+        plant: the station's plant (body centres of mass; not kept).
+        stage_has_goal: per stage, whether its target is the goal pose (Insert, tool Reorient).
+    """
+
+    def __init__(self, plant: MultibodyPlant, stage_has_goal: list[bool]):
+        super().__init__()
+        self._p_BoBcm = [plant.get_body(BodyIndex(i)).default_com() for i in range(plant.num_bodies())]
+        self._has_goal = [bool(g) for g in stage_has_goal]
+        default_poses = [RigidTransform()] * plant.num_bodies()
+        self._poses_port = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make(default_poses))
+        self._stage_port = self.DeclareVectorInputPort("stage", 1)
+        self._target_index = self.DeclareAbstractParameter(AbstractValue.Make(ObservationTarget()))
+        self.DeclareVectorOutputPort("target_position", 3, self._calc)
+
+    def set_target(self, context: Context, target: ObservationTarget) -> None:
+        if not 0 <= target.object_body < len(self._p_BoBcm):
+            raise ValueError(f"target body index {target.object_body} is not a body of the station's plant "
+                             f"(0..{len(self._p_BoBcm) - 1})")
+        context.get_mutable_abstract_parameter(self._target_index).set_value(target)
+
+    def target(self, context: Context) -> ObservationTarget:
+        return context.get_abstract_parameter(self._target_index).get_value()
+
+    def _calc(self, context: Context, output: BasicVector) -> None:
+        target = self.target(context)
+        if target.object_body < 0:
+            raise RuntimeError("the chain has no target: call SetChainTarget(controller, root_context, body) "
+                               "before simulating")
+        stage = int(round(self._stage_port.Eval(context)[0]))
+        if self._has_goal[stage]:
+            output.SetFromVector(np.asarray(target.goal, dtype=float)[:3])
+            return
+        X_WB = self._poses_port.Eval(context)[target.object_body]
+        output.SetFromVector(X_WB @ self._p_BoBcm[target.object_body])
+
+
+class WristTargetIntegrator(LeafSystem):
+    """The arm's PD targets: the OSC's command, or the policy's wrist translation tracked by IK.
+
+    While the policy is in charge the output is ``[q, 0]`` with ``q = ik.step(q_prev, p_WC(q_prev) + w, R_WP)``:
+    one damped least-squares step from the previous arm *target* ``q_prev`` toward the hand centre moved by the
+    routed wrist translation ``w``, palm orientation held. Otherwise it passes the OSC's ``franka.desired_state``
+    through. The state is the target held during the last control period, so the integration continues from
+    the OSC's last command when a policy takes over.
+
+    Input ports: ``franka.state`` (14, read at initialization), ``osc.desired_state`` (14),
+    ``wrist_translation`` (3), ``policy_in_charge`` (1). Output port: ``franka.desired_state`` (14).
+
+    Args:
+        ik: the palm IK on the controller plant (controlled point: the hand centre).
+        R_WP_hold: the palm orientation held while the policy moves the wrist.
+        control_period: seconds between updates.
+    """
+
+    def __init__(self, ik: PalmIK, R_WP_hold: RotationMatrix, control_period: float):
+        super().__init__()
+        self._ik, self._R_WP = ik, R_WP_hold
+        self._state_port = self.DeclareVectorInputPort("franka.state", 2 * NUM_ARM)
+        self._osc_port = self.DeclareVectorInputPort("osc.desired_state", 2 * NUM_ARM)
+        self._wrist_port = self.DeclareVectorInputPort("wrist_translation", 3)
+        self._in_charge_port = self.DeclareVectorInputPort("policy_in_charge", 1)
+        self._q_index = self.DeclareDiscreteState(NUM_ARM)
+        tickets = {self.discrete_state_ticket(self._q_index), self._osc_port.ticket(), self._wrist_port.ticket(),
+                   self._in_charge_port.ticket()}
+        self.DeclareVectorOutputPort("franka.desired_state", 2 * NUM_ARM, self._calc, prerequisites_of_calc=tickets)
+        self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
+        self.DeclarePeriodicDiscreteUpdateEvent(control_period, 0.0, self._update)
+
+    def _command(self, context: Context) -> np.ndarray:
+        if self._in_charge_port.Eval(context)[0] < 0.5:
+            return np.asarray(self._osc_port.Eval(context), dtype=float)
+        q = context.get_discrete_state(self._q_index).get_value()
+        p_WC = self._ik.palm_pose(q).translation() + self._wrist_port.Eval(context)
+        return np.r_[self._ik.step(q, p_WC, self._R_WP), np.zeros(NUM_ARM)]
+
+    def _calc(self, context: Context, output: BasicVector) -> None:
+        output.SetFromVector(self._command(context))
+
+    def _initialize(self, context: Context, discrete_state: DiscreteValues) -> None:
+        discrete_state.set_value(self._q_index, self._state_port.Eval(context)[:NUM_ARM])
+
+    def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
+        discrete_state.set_value(self._q_index, self._command(context)[:NUM_ARM])
+
+
+class ChainMarker(LeafSystem):
+    """Draws a sphere in Meshcat at the approach target, coloured by the executing stage.
+
+    Input ports: ``target_position`` (3), ``stage`` (1).
+
+    Args:
+        meshcat: the Meshcat to draw in.
+        publish_period: seconds between redraws.
+        path: the Meshcat path of the sphere.
+    """
+
+    def __init__(self, meshcat, publish_period: float = 0.1, path: str = "chain/target"):
+        super().__init__()
+        self._meshcat, self._path, self._stage = meshcat, path, -1
+        self._target_port = self.DeclareVectorInputPort("target_position", 3)
+        self._stage_port = self.DeclareVectorInputPort("stage", 1)
+        self.DeclarePeriodicPublishEvent(publish_period, 0.0, self._publish)
+
+    def _publish(self, context: Context) -> EventStatus:
+        stage = int(round(self._stage_port.Eval(context)[0]))
+        if stage != self._stage:
+            self._meshcat.SetObject(self._path, Sphere(0.012), _STAGE_COLORS[stage % len(_STAGE_COLORS)])
+            self._stage = stage
+        self._meshcat.SetTransform(self._path, RigidTransform(self._target_port.Eval(context)))
+        return EventStatus.Succeeded()

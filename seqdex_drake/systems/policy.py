@@ -1,0 +1,217 @@
+"""A trained sub-policy as a Drake LeafSystem: observation in, filtered 60 Hz hand and wrist commands out.
+
+:class:`PolicySystem` hosts one :class:`~seqdex_drake.rl.networks.ActorCritic` (observation normalizer inside)
+and runs its deterministic action (the Gaussian's mean) once per control period. The 19-dim action is
+clipped to [-1, 1]; its 16 hand entries are low-pass filtered with an exponential moving average,
+``filtered = ema * new + (1 - ema) * previous`` (the paper's deployment value is ``ema = 0.2``,
+:data:`DEPLOYMENT_EMA`; the sub-task environments train with each task's ``TaskConfig.ema``). Because
+:func:`~seqdex_drake.robots.allegro.scale_action_to_limits` is affine on [-1, 1], filtering the action is
+filtering the joint targets, exactly as the environments do. The 3 wrist entries are not filtered unless
+``smooth_wrist`` (the environments do not filter them).
+
+Chaining. Several PolicySystems share one robot, so the filter's memory is the action the robot *applies*,
+not the system's own last output: connect ``previous_action`` (raw) and ``previous_filtered_action`` to the
+applied action (the chain's router does). A system whose ``active`` input is 0 skips inference and copies
+the applied action into its state, so that whenever it is routed to the robot its outputs are what the robot
+executes; when it becomes active its first filtered action starts from the applied one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+from pydrake.systems.framework import BasicVector, Context, DiscreteValues, LeafSystem
+
+from seqdex_drake.rl.networks import ActorCritic
+from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, scale_action_to_limits, unscale_limits_to_action
+
+ACTION_SIZE = 19
+HAND_SIZE = 16
+DEPLOYMENT_EMA = 0.2
+"""The paper's EMA factor for real-world deployment (appendix, "Real-world setup")."""
+PAPER_HIDDEN_SIZES = (1024, 1024, 512)
+"""Actor hidden sizes of the paper's PPO tables (used for untrained policies)."""
+_HAND_Q = slice(7, 23)
+"""Allegro joint positions in every observation layout (``systems/observations.py``, indices 7-22)."""
+
+
+@dataclasses.dataclass
+class PolicyParams:
+    """Parameters of :class:`PolicySystem`."""
+
+    control_period: float = 1.0 / 60.0
+    """Seconds between policy updates (the scenario's ``control_period``; the paper runs at 60 Hz)."""
+    ema: float = DEPLOYMENT_EMA
+    """EMA factor a of the hand action: ``filtered = a * new + (1 - a) * previous``; 1 disables filtering."""
+    smooth_wrist: bool = False
+    """Also filter the 3 wrist entries (the environments do not)."""
+    wrist_step: float = 0.005
+    """Wrist (hand centre) translation per update at action 1 (m), ``TaskConfig.wrist_step``."""
+
+
+def _check_model(model: ActorCritic, observation_size: int, source: str) -> None:
+    if model.obs_dim != observation_size:
+        raise ValueError(f"policy {source} reads {model.obs_dim}-dim observations, but its stage's observation "
+                         f"has {observation_size} (expected {observation_size}, found {model.obs_dim}); use the "
+                         f"checkpoint trained for this stage's task")
+    if model.action_dim != ACTION_SIZE:
+        raise ValueError(f"policy {source} outputs {model.action_dim} actions; the station needs {ACTION_SIZE} "
+                         f"(16 hand joints + 3 wrist translation)")
+
+
+class PolicySystem(LeafSystem):
+    """Runs one sub-policy at the control rate and holds its filtered action (a zero-order hold).
+
+    Input ports: ``observation`` (the stage's observation size), ``active`` (1, optional: unconnected means
+    always active), ``previous_action`` (19, optional: the raw action the robot applied last tick),
+    ``previous_filtered_action`` (19, optional: the filtered action the robot applies now). Unconnected
+    feedback inputs mean "this system's own last output".
+
+    Output ports (all held between updates, no direct feedthrough): ``action`` (19, clipped to [-1, 1],
+    hand part EMA-filtered), ``raw_action`` (19, clipped, unfiltered: what the observations' previous-action
+    entries hold), ``hand_target`` (16 Allegro joint targets, rad), ``wrist_translation`` (3, m).
+
+    At initialization the filter memory becomes the action that holds the measured hand joint positions
+    (read from the observation) and a zero wrist motion, so starting a simulation does not jerk the hand.
+
+    Construct with :meth:`from_checkpoint`, :meth:`untrained`, or directly from an in-memory model.
+
+    Args:
+        model: the actor-critic; it is put in eval mode and used for inference only.
+        observation_size: size of the stage's observation (checked against the model's input).
+        params: update period, EMA factor, wrist step; defaults to ``PolicyParams()``.
+        trained: False marks a freshly initialised policy (the chain runs without checkpoints).
+        source: where the model came from (a file path or a description), used in messages.
+    """
+
+    def __init__(self, model: ActorCritic, observation_size: int, params: PolicyParams | None = None,
+                 trained: bool = True, source: str = "in-memory model"):
+        super().__init__()
+        self._params = params = params or PolicyParams()
+        if not 0.0 < params.ema <= 1.0:
+            raise ValueError(f"the EMA factor must be in (0, 1], got {params.ema}")
+        if params.control_period <= 0:
+            raise ValueError(f"control_period must be positive, got {params.control_period}")
+        _check_model(model, observation_size, source)
+        self.model = model.eval()
+        self.trained = bool(trained)
+        self.source = str(source)
+        self.observation_size = int(observation_size)
+        self._weight = np.full(ACTION_SIZE, float(params.ema))
+        if not params.smooth_wrist:
+            self._weight[HAND_SIZE:] = 1.0
+
+        self._observation_port = self.DeclareVectorInputPort("observation", observation_size)
+        self._active_port = self.DeclareVectorInputPort("active", 1)
+        self._previous_port = self.DeclareVectorInputPort("previous_action", ACTION_SIZE)
+        self._previous_filtered_port = self.DeclareVectorInputPort("previous_filtered_action", ACTION_SIZE)
+        initial = np.r_[unscale_limits_to_action(ALLEGRO_OPEN_Q), np.zeros(3)]
+        # State: [filtered action (19), raw action (19)].
+        self._state_index = self.DeclareDiscreteState(np.r_[initial, initial])
+        ticket = {self.discrete_state_ticket(self._state_index)}
+        self.DeclareVectorOutputPort("action", ACTION_SIZE, self._calc_action, prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort("raw_action", ACTION_SIZE, self._calc_raw, prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort("hand_target", HAND_SIZE, self._calc_hand, prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort("wrist_translation", 3, self._calc_wrist, prerequisites_of_calc=ticket)
+        self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
+        self.DeclarePeriodicDiscreteUpdateEvent(params.control_period, 0.0, self._update)
+
+    # ------------------------------------------------------------------------------------- constructors
+    @classmethod
+    def from_checkpoint(cls, path: str | os.PathLike, observation_size: int,
+                        params: PolicyParams | None = None) -> PolicySystem:
+        """Loads the model of a PPO checkpoint (``last.pt`` / ``best.pt``) with ``PPO.resume``.
+
+        Loading restores the caller's random-number generator states afterwards (``PPO.resume`` reseeds them).
+
+        Raises:
+            FileNotFoundError: no such file.
+            ValueError: the checkpoint's observation size differs from ``observation_size`` (names the file and
+                both sizes), or its action size is not 19.
+        """
+        from seqdex_drake.rl.checkpoint import capture_rng_state, restore_rng_state
+        from seqdex_drake.rl.ppo import PPO
+
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"policy checkpoint {path} does not exist; train the stage first "
+                                    f"(seqdex train --task <task> --run-dir ...) or pass None for an untrained policy")
+        rng_state = capture_rng_state()
+        try:
+            ppo = PPO.resume(path, device="cpu")
+        finally:
+            restore_rng_state(rng_state)
+        return cls(ppo.model, observation_size, params, trained=True, source=str(path))
+
+    @classmethod
+    def untrained(cls, observation_size: int, seed: int = 0, params: PolicyParams | None = None,
+                  hidden_sizes: tuple[int, ...] = PAPER_HIDDEN_SIZES) -> PolicySystem:
+        """A freshly initialised policy (``trained = False``), seeded without touching the global torch RNG.
+
+        Its actions are near zero (the output layer starts at gain 0.01): the hand moves to the middle of its
+        joint ranges and the wrist stays put.
+        """
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(seed)
+            model = ActorCritic(observation_size, ACTION_SIZE, hidden_sizes, critic_hidden_sizes=(8,))
+        return cls(model, observation_size, params, trained=False, source=f"untrained policy (seed {seed})")
+
+    # ------------------------------------------------------------------------------------------ helpers
+    @property
+    def params(self) -> PolicyParams:
+        return self._params
+
+    def raw_action(self, observation: np.ndarray) -> np.ndarray:
+        """The clipped deterministic action for one observation (no filtering)."""
+        with torch.inference_mode():
+            obs = torch.as_tensor(np.asarray(observation, dtype=np.float32)).reshape(1, -1)
+            action = self.model.action_mean(obs)[0].numpy().astype(float)
+        return np.clip(action, -1.0, 1.0)
+
+    def filter(self, raw: np.ndarray, previous_filtered: np.ndarray) -> np.ndarray:
+        """The EMA step: ``ema * raw + (1 - ema) * previous`` on the hand (and wrist if smoothed), clipped."""
+        return np.clip(self._weight * raw + (1.0 - self._weight) * previous_filtered, -1.0, 1.0)
+
+    # ------------------------------------------------------------------------------------------- events
+    def _memory(self, context: Context) -> tuple[np.ndarray, np.ndarray]:
+        """(filtered, raw) action the robot applies: the feedback inputs if connected, else own state."""
+        state = context.get_discrete_state(self._state_index).get_value()
+        filtered = (self._previous_filtered_port.Eval(context) if self._previous_filtered_port.HasValue(context)
+                    else state[:ACTION_SIZE])
+        raw = self._previous_port.Eval(context) if self._previous_port.HasValue(context) else state[ACTION_SIZE:]
+        return np.asarray(filtered, dtype=float), np.asarray(raw, dtype=float)
+
+    def _initialize(self, context: Context, discrete_state: DiscreteValues) -> None:
+        observation = self._observation_port.Eval(context)
+        hold = np.r_[np.clip(unscale_limits_to_action(observation[_HAND_Q]), -1.0, 1.0), np.zeros(3)]
+        discrete_state.set_value(self._state_index, np.r_[hold, hold])
+
+    def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
+        filtered, raw = self._memory(context)
+        active = not self._active_port.HasValue(context) or self._active_port.Eval(context)[0] > 0.5
+        if active:
+            raw = self.raw_action(self._observation_port.Eval(context))
+            if not np.all(np.isfinite(raw)):
+                raise RuntimeError(f"policy {self.source} produced a non-finite action at t = "
+                                   f"{context.get_time():.3f} s (non-finite observation or weights)")
+            filtered = self.filter(raw, filtered)
+        discrete_state.set_value(self._state_index, np.r_[filtered, raw])
+
+    def _state(self, context: Context) -> np.ndarray:
+        return context.get_discrete_state(self._state_index).get_value()
+
+    def _calc_action(self, context: Context, output: BasicVector) -> None:
+        output.SetFromVector(self._state(context)[:ACTION_SIZE])
+
+    def _calc_raw(self, context: Context, output: BasicVector) -> None:
+        output.SetFromVector(self._state(context)[ACTION_SIZE:])
+
+    def _calc_hand(self, context: Context, output: BasicVector) -> None:
+        output.SetFromVector(scale_action_to_limits(self._state(context)[:HAND_SIZE]))
+
+    def _calc_wrist(self, context: Context, output: BasicVector) -> None:
+        output.SetFromVector(self._state(context)[HAND_SIZE:ACTION_SIZE] * self._params.wrist_step)

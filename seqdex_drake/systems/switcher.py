@@ -1,0 +1,201 @@
+"""The feasibility-based policy switcher (paper Sec. 3.3) as a Drake LeafSystem.
+
+Stages are indexed 0..K-1 in chain order (the paper's stage k is index k-1). ``feasibility[i]`` (i >= 1) is
+the paper's F^{i+1}: it scores the last H observations *in stage i-1's layout* and predicts stage i's
+return; its score is c^i = F^i(history) / h^i. Stage 0 never has one.
+
+Every control tick the switcher appends each needed observation to a history kept as discrete state (the last
+H observations per stage layout; shorter histories are left-padded by ``pad_history`` inside the model), computes
+every available c^i (output ``feasibility_scores``, NaN where a stage has no F) and advances the executing
+stage's step counter. A *decision* happens when
+
+- the next stage's score c^{i+1}, or any later stage's, exceeds 1 (the paper's switch timing), or
+- the executing stage's step budget is used up, or the optional ``stage_success`` input is above 0.5, or
+- every tick, with ``evaluate_every_tick`` (the paper's "at each time step", literally).
+
+At a decision, while fewer than ``max_switches`` feasibility switches have been made, the switcher walks back
+from the last stage and selects the first stage with c > 1; if none has, it restarts from stage 0. This is a
+feasibility switch: it counts one towards ``max_switches`` and restarts the selected stage's budget (with
+``evaluate_every_tick`` only a change of stage counts). Otherwise -- the cap is reached, ``max_switches = 0``,
+or the stage after the current one has no F (for the last stage: its own F; an untrained pipeline: the
+transition cannot be judged) -- the *sequential rule* applies: on budget or success the chain advances to
+the next stage; the last stage keeps running. ``max_switches = 0`` is thus plain sequential execution with
+per-stage time budgets (Policy-Seq).
+
+While the optional ``approach_active`` input is above 0.5 (the operational-space controller moves the hand,
+no policy acts) the step counter does not run and no decision is taken; histories and scores still update.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import numpy as np
+from pydrake.systems.framework import BasicVector, Context, DiscreteValues, LeafSystem
+
+from seqdex_drake.chaining.feasibility import score
+
+_STAGE, _STEPS, _SWITCHES = 0, 1, 2
+
+
+@dataclasses.dataclass
+class SwitcherParams:
+    """Parameters of :class:`FeasibilitySwitcher`."""
+
+    max_switches: int = 3
+    """Most feasibility switches per run (paper Fig. 5a: 0-3 in simulation, 10 in the real world); 0 =
+    sequential execution."""
+    stage_steps: tuple[int, ...] | None = None
+    """Step budget (control ticks) per stage; None: each task's ``TaskConfig.episode_length``."""
+    evaluate_every_tick: bool = False
+    """Walk the scores every tick (a change of stage counts as a switch) instead of at decision points."""
+
+
+def walk_back(scores: np.ndarray) -> int:
+    """The paper's stage estimate: the last stage i >= 1 with c^i > 1 (NaN never is), else 0 (restart)."""
+    for stage in range(len(scores) - 1, 0, -1):
+        if scores[stage] > 1.0:
+            return stage
+    return 0
+
+
+class FeasibilitySwitcher(LeafSystem):
+    """Chooses the executing stage from the feasibility scores c^i = F^i / h^i (see the module docstring).
+
+    Input ports: ``observation.<i>`` for every stage i whose successor has an F (stage i's observation, the
+    history F^{i+1} reads), ``stage_success`` (1, optional), ``approach_active`` (1, optional).
+    Output ports: ``active_stage`` (1, the stage index 0..K-1 to execute), ``feasibility_scores`` (K, c^i;
+    NaN for stage 0 and stages without F), ``switches_used`` (1).
+
+    Args:
+        feasibility: K entries; entry 0 must be None, entry i is None (no F) or an object with ``model``
+            (its ``predict`` takes a (T, obs_dim) history), ``threshold`` (h) and ``config.input_length``
+            (H), e.g. a :class:`~seqdex_drake.chaining.feasibility_io.FeasibilityFile`.
+        observation_sizes: K observation sizes, one per stage (stage i-1's size is F^i's input size).
+        stage_steps: K step budgets (control ticks); ``params.stage_steps`` overrides them when given.
+        control_period: seconds between updates (the scenario's ``control_period``).
+        params: switch cap and decision rule; defaults to ``SwitcherParams()``.
+    """
+
+    def __init__(self, feasibility: Sequence, observation_sizes: Sequence[int], stage_steps: Sequence[int],
+                 control_period: float, params: SwitcherParams | None = None):
+        super().__init__()
+        self._params = params = params or SwitcherParams()
+        self._feasibility = list(feasibility)
+        count = self.num_stages = len(self._feasibility)
+        budgets = list(params.stage_steps if params.stage_steps is not None else stage_steps)
+        if count < 1 or len(observation_sizes) != count or len(budgets) != count:
+            raise ValueError(f"need one F entry, observation size and step budget per stage; got {count}, "
+                             f"{len(observation_sizes)} and {len(budgets)}")
+        if self._feasibility[0] is not None:
+            raise ValueError("stage 0 has no predecessor, so it cannot have a feasibility function; pass None")
+        if min(budgets) < 1:
+            raise ValueError(f"every stage step budget must be at least 1 tick, got {budgets}")
+        if params.max_switches < 0:
+            raise ValueError(f"max_switches must be >= 0, got {params.max_switches}")
+        self._budgets = np.asarray(budgets, dtype=int)
+        self._history_ports, self._history_index, self._history_shape = {}, {}, {}
+        for stage in range(1, count):
+            f = self._feasibility[stage]
+            if f is None:
+                continue
+            source, size = stage - 1, int(observation_sizes[stage - 1])
+            model_dim = getattr(f.model, "obs_dim", size)
+            if model_dim != size:
+                raise ValueError(f"the feasibility function of stage {stage} reads {model_dim}-dim histories, but "
+                                 f"stage {source}'s observation has {size}; use the F trained on that stage")
+            length = int(f.config.input_length)
+            self._history_shape[source] = (length, size)
+            self._history_ports[source] = self.DeclareVectorInputPort(f"observation.{source}", size)
+            self._history_index[source] = self.DeclareDiscreteState(np.zeros(1 + length * size))  # [count, rows]
+        self._success_port = self.DeclareVectorInputPort("stage_success", 1)
+        self._approach_port = self.DeclareVectorInputPort("approach_active", 1)
+        self._status_index = self.DeclareDiscreteState(np.zeros(3))  # stage, steps in stage, switches used
+        self._scores_index = self.DeclareDiscreteState(np.full(count, np.nan))
+        status = {self.discrete_state_ticket(self._status_index)}
+        self.DeclareVectorOutputPort("active_stage", 1, self._calc_stage, prerequisites_of_calc=status)
+        self.DeclareStateOutputPort("feasibility_scores", self._scores_index)
+        self.DeclareVectorOutputPort("switches_used", 1, self._calc_switches, prerequisites_of_calc=status)
+        self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
+        self.DeclarePeriodicDiscreteUpdateEvent(control_period, 0.0, self._update)
+
+    @property
+    def params(self) -> SwitcherParams:
+        return self._params
+
+    @property
+    def stage_budgets(self) -> np.ndarray:
+        return self._budgets.copy()
+
+    def has_feasibility(self, stage: int) -> bool:
+        return 0 <= stage < self.num_stages and self._feasibility[stage] is not None
+
+    # ------------------------------------------------------------------------------------------ history
+    def history(self, context: Context, stage: int) -> np.ndarray:
+        """The recorded observations of stage ``stage``'s layout, oldest first (at most H rows)."""
+        length, size = self._history_shape[stage]
+        value = context.get_discrete_state(self._history_index[stage]).get_value()
+        rows = value[1:].reshape(length, size)
+        return rows[length - int(value[0]):]
+
+    def _append(self, context: Context, discrete_state: DiscreteValues, stage: int) -> np.ndarray:
+        length, size = self._history_shape[stage]
+        value = context.get_discrete_state(self._history_index[stage]).get_value()
+        rows = np.roll(value[1:].reshape(length, size), -1, axis=0)
+        rows[-1] = self._history_ports[stage].Eval(context)
+        count = min(int(value[0]) + 1, length)
+        discrete_state.set_value(self._history_index[stage], np.r_[count, rows.ravel()])
+        return rows[length - count:]
+
+    # ----------------------------------------------------------------------------------------- decision
+    def decide(self, stage: int, steps: int, switches: int, scores: np.ndarray,
+               success: bool) -> tuple[int, bool, bool]:
+        """The rule of the module docstring: (next stage, whether the stage restarts its clock, whether the
+        decision is a feasibility switch)."""
+        last = self.num_stages - 1
+        budget_done = success or steps >= self._budgets[stage]
+        may_switch = switches < self._params.max_switches
+        # The transition out of this stage can be judged when the next stage has an F (the last stage: its own).
+        judged = self._feasibility[min(stage + 1, last)] is not None
+        forward = judged and bool(np.any(scores[stage + 1:] > 1.0))  # a later stage is feasible (NaN is not)
+        if may_switch and judged and (forward or budget_done):
+            return walk_back(scores), True, True
+        if may_switch and judged and self._params.evaluate_every_tick:
+            target = walk_back(scores)
+            if target != stage:
+                return target, True, True
+        if budget_done:
+            return min(stage + 1, last), stage < last, False
+        return stage, False, False
+
+    # ------------------------------------------------------------------------------------------- events
+    def _initialize(self, context: Context, discrete_state: DiscreteValues) -> None:
+        for stage, index in self._history_index.items():
+            discrete_state.set_value(index, np.zeros(1 + int(np.prod(self._history_shape[stage]))))
+        discrete_state.set_value(self._status_index, np.zeros(3))
+        discrete_state.set_value(self._scores_index, np.full(self.num_stages, np.nan))
+
+    def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
+        histories = {stage: self._append(context, discrete_state, stage) for stage in self._history_index}
+        scores = np.full(self.num_stages, np.nan)
+        for stage in range(1, self.num_stages):
+            f = self._feasibility[stage]
+            if f is not None:
+                scores[stage] = float(score(f.model, histories[stage - 1], f.threshold))
+        discrete_state.set_value(self._scores_index, scores)
+        status = context.get_discrete_state(self._status_index).get_value().copy()
+        if self._approach_port.HasValue(context) and self._approach_port.Eval(context)[0] > 0.5:
+            discrete_state.set_value(self._status_index, status)
+            return
+        stage, steps, switches = int(status[_STAGE]), int(status[_STEPS]) + 1, int(status[_SWITCHES])
+        success = self._success_port.HasValue(context) and self._success_port.Eval(context)[0] > 0.5
+        target, restart, switched = self.decide(stage, steps, switches, scores, bool(success))
+        discrete_state.set_value(self._status_index, np.array(
+            [target, 0 if restart else steps, switches + int(switched)], dtype=float))
+
+    def _calc_stage(self, context: Context, output: BasicVector) -> None:
+        output.SetAtIndex(0, context.get_discrete_state(self._status_index).GetAtIndex(_STAGE))
+
+    def _calc_switches(self, context: Context, output: BasicVector) -> None:
+        output.SetAtIndex(0, context.get_discrete_state(self._status_index).GetAtIndex(_SWITCHES))

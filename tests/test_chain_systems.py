@@ -1,0 +1,278 @@
+"""The chain's Drake systems: policy hosting (vs. a direct torch call, EMA), the feasibility switcher's rule on
+hand-built F's (forward, bypass, recovery, restart, switch cap, sequential fallback), checkpoint discovery, and
+the chain controller closed around a real station."""
+
+import types
+
+import numpy as np
+import pytest
+import torch
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+
+from seqdex_drake import (
+    ChainParams,
+    ConnectChainController,
+    LoadChainCheckpoints,
+    LoadScenario,
+    MakeChainController,
+    MakeStation,
+    SetChainTarget,
+)
+from seqdex_drake.chaining.feasibility import FeasibilityConfig, build_feasibility_model, save_feasibility
+from seqdex_drake.cli import observation_spec
+from seqdex_drake.rl.config import PPOConfig
+from seqdex_drake.rl.networks import ActorCritic
+from seqdex_drake.rl.ppo import PPO
+from seqdex_drake.robots.allegro import scale_action_to_limits, unscale_limits_to_action
+from seqdex_drake.systems.policy import PolicyParams, PolicySystem
+from seqdex_drake.systems.switcher import FeasibilitySwitcher, SwitcherParams, walk_back
+
+PERIOD = 1.0 / 60.0
+
+
+def tiny_model(obs_dim: int, seed: int = 0) -> ActorCritic:
+    """A small actor with a fitted normalizer and an output layer large enough that some actions clip."""
+    torch.manual_seed(seed)
+    model = ActorCritic(obs_dim, 19, (32, 32), (8,))
+    model.update_normalizer(torch.randn(64, obs_dim) * 3 + 1)
+    with torch.no_grad():
+        model.actor[-1].weight.mul_(300.0)
+    return model
+
+
+def tick(simulator: Simulator, ticks: int = 1) -> None:
+    """Advances ``ticks`` control periods (the update at t = k * PERIOD runs when passing it)."""
+    context = simulator.get_context()
+    k = int(round(context.get_time() / PERIOD + 0.5))
+    simulator.AdvanceTo((k + ticks - 0.5) * PERIOD)
+
+
+# --------------------------------------------------------------------------------------------- policy
+def test_policy_equals_direct_torch_call_with_ema():
+    model = tiny_model(159)
+    params = PolicyParams(control_period=PERIOD, ema=0.3, wrist_step=0.005)
+    policy = PolicySystem(model, 159, params)
+    context = policy.CreateDefaultContext()
+    rng = np.random.default_rng(0)
+    observations = [rng.normal(size=159) for _ in range(3)]
+    observations[0][7:23] = scale_action_to_limits(rng.uniform(-1, 1, 16))
+    policy.GetInputPort("observation").FixValue(context, observations[0])
+    simulator = Simulator(policy, context)
+    simulator.Initialize()
+    previous = np.r_[unscale_limits_to_action(observations[0][7:23]), np.zeros(3)]  # hold the measured hand
+    np.testing.assert_allclose(policy.GetOutputPort("action").Eval(context), previous, atol=1e-12)
+    for k, obs in enumerate(observations):
+        policy.GetInputPort("observation").FixValue(context, obs)
+        tick(simulator)
+        with torch.no_grad():
+            raw = np.clip(model.action_mean(torch.as_tensor(obs, dtype=torch.float32)[None])[0].numpy(), -1, 1)
+        if k == 0:
+            assert np.any(np.abs(raw) == 1.0), "the test model should saturate some actions"
+        expected = np.r_[0.3 * raw[:16] + 0.7 * previous[:16], raw[16:]]
+        np.testing.assert_allclose(policy.GetOutputPort("raw_action").Eval(context), raw, atol=1e-6)
+        np.testing.assert_allclose(policy.GetOutputPort("action").Eval(context), expected, atol=1e-6)
+        np.testing.assert_allclose(policy.GetOutputPort("hand_target").Eval(context),
+                                   scale_action_to_limits(expected[:16]), atol=1e-6)
+        np.testing.assert_allclose(policy.GetOutputPort("wrist_translation").Eval(context), 0.005 * raw[16:],
+                                   atol=1e-8)
+        previous = expected
+    # Inactive: no inference, the state copies the applied action given on the feedback inputs.
+    applied = rng.uniform(-1, 1, 19)
+    policy.GetInputPort("active").FixValue(context, [0.0])
+    policy.GetInputPort("previous_filtered_action").FixValue(context, applied)
+    policy.GetInputPort("previous_action").FixValue(context, -applied)
+    tick(simulator)
+    np.testing.assert_allclose(policy.GetOutputPort("action").Eval(context), applied)
+    np.testing.assert_allclose(policy.GetOutputPort("raw_action").Eval(context), -applied)
+
+
+def test_policy_from_checkpoint_checks_observation_size(tmp_path):
+    config = PPOConfig(actor_hidden_sizes=(16,), critic_hidden_sizes=(8,), num_envs=1)
+    ppo = PPO(config, obs_dim=159, action_dim=19)
+    path = ppo.save(tmp_path / "best.pt")
+    np.random.seed(123)
+    before = np.random.get_state()[1].copy()
+    policy = PolicySystem.from_checkpoint(path, 159)
+    np.testing.assert_array_equal(np.random.get_state()[1], before)  # loading leaves the caller's RNG alone
+    assert policy.trained and policy.source == str(path)
+    obs = np.linspace(-1, 1, 159)
+    with torch.no_grad():
+        direct = ppo.model.action_mean(torch.as_tensor(obs, dtype=torch.float32)[None])[0].numpy()
+    np.testing.assert_allclose(policy.raw_action(obs), np.clip(direct, -1, 1), atol=1e-6)
+    with pytest.raises(ValueError, match=r"best\.pt.*expected 173, found 159"):
+        PolicySystem.from_checkpoint(path, 173)
+    with pytest.raises(FileNotFoundError, match="missing.pt"):
+        PolicySystem.from_checkpoint(tmp_path / "missing.pt", 159)
+    untrained = PolicySystem.untrained(159, seed=4, hidden_sizes=(16,))
+    assert not untrained.trained
+    np.testing.assert_allclose(untrained.raw_action(obs), PolicySystem.untrained(159, 4, hidden_sizes=(16,))
+                               .raw_action(obs))
+
+
+# ------------------------------------------------------------------------------------------- switcher
+class ReadScore(torch.nn.Module):
+    """A hand-written F: the last observation's first entry (so c = entry / h)."""
+
+    obs_dim = 2
+
+    def predict(self, history):
+        return float(np.asarray(history)[-1, 0])
+
+
+def hand_built_f(history: int = 3):
+    return types.SimpleNamespace(model=ReadScore(), threshold=1.0,
+                                 config=types.SimpleNamespace(input_length=history))
+
+
+class SwitcherRig:
+    """A 4-stage switcher whose F^i reads observation.<i-1>[0]; ``set(c1, c2, c3)`` fixes the scores."""
+
+    def __init__(self, max_switches=3, missing=(), budgets=(5, 5, 5, 5), every_tick=False):
+        fs = [None] + [None if i in missing else hand_built_f() for i in (1, 2, 3)]
+        self.switcher = FeasibilitySwitcher(fs, [2] * 4, budgets, PERIOD,
+                                            SwitcherParams(max_switches, evaluate_every_tick=every_tick))
+        self.context = self.switcher.CreateDefaultContext()
+        self.missing = missing
+        self.set(0, 0, 0)
+        self.simulator = Simulator(self.switcher, self.context)
+        self.simulator.Initialize()
+
+    def set(self, *scores):
+        for i, c in enumerate(scores, start=1):
+            if i not in self.missing:
+                self.switcher.GetInputPort(f"observation.{i - 1}").FixValue(self.context, [c, 0.0])
+
+    def run(self, ticks=1):
+        tick(self.simulator, ticks)
+        stage = int(self.switcher.GetOutputPort("active_stage").Eval(self.context)[0])
+        return stage, int(self.switcher.GetOutputPort("switches_used").Eval(self.context)[0])
+
+    def scores(self):
+        return self.switcher.GetOutputPort("feasibility_scores").Eval(self.context)
+
+
+def test_walk_back_picks_the_last_feasible_stage():
+    assert walk_back(np.array([np.nan, 2.0, 0.5, 1.5])) == 3
+    assert walk_back(np.array([np.nan, 2.0, 1.5, 0.2])) == 2
+    assert walk_back(np.array([np.nan, 0.5, np.nan, 1.0])) == 0  # c must exceed 1; NaN never does
+
+
+def test_switcher_forward_bypass_recovery_restart():
+    rig = SwitcherRig()
+    assert rig.run() == (0, 0)
+    np.testing.assert_allclose(rig.scores(), [np.nan, 0, 0, 0])
+    rig.set(2.0, 0.0, 0.0)
+    assert rig.run() == (1, 1)  # forward: c^1 > 1
+    rig.set(0.5, 3.0, 0.0)
+    assert rig.run() == (2, 2)
+    rig.set(2.0, 0.5, 0.5)  # stage 2 no longer feasible, stage 1 is: recovery at the end of stage 2's budget
+    assert rig.run(4) == (2, 2)
+    assert rig.run() == (1, 3)
+    rig = SwitcherRig()
+    rig.set(1.5, 2.0, 0.9)  # from stage 0 the walk bypasses stage 1 (already achieved): stage 2
+    assert rig.run() == (2, 1)
+    rig.set(0.0, 0.0, 0.0)  # nothing feasible at the end of the budget: restart from stage 0
+    assert rig.run(4) == (2, 1)
+    assert rig.run() == (0, 2)
+
+
+def test_switcher_cap_zero_is_sequential_and_history_is_kept():
+    rig = SwitcherRig(max_switches=0, budgets=(3, 2, 2, 2))
+    rig.set(5.0, 5.0, 5.0)  # feasibility ignored: advance on the step budget only
+    assert [rig.run()[0] for _ in range(8)] == [0, 0, 1, 1, 2, 2, 3, 3]
+    assert rig.run(5) == (3, 0)  # the last stage keeps running
+    history = rig.switcher.history(rig.context, 0)
+    assert history.shape == (3, 2) and np.all(history[:, 0] == 5.0)
+    # stage_success ends a stage early.
+    rig = SwitcherRig(max_switches=0, budgets=(50, 50, 50, 50))
+    rig.switcher.GetInputPort("stage_success").FixValue(rig.context, [1.0])
+    assert [rig.run()[0] for _ in range(3)] == [1, 2, 3]
+
+
+def test_switcher_cap_and_missing_f_fall_back_to_sequential():
+    rig = SwitcherRig(max_switches=1, budgets=(4, 4, 4, 4))
+    rig.set(0.0, 0.0, 3.0)
+    assert rig.run() == (3, 1)  # one feasibility switch (straight to the last stage) ...
+    rig.set(0.0, 0.0, 0.0)
+    assert rig.run(6) == (3, 1)  # ... then the cap holds: no restart although nothing is feasible
+    rig = SwitcherRig(missing=(2,), budgets=(4, 3, 3, 3))
+    rig.set(2.0, 0.0, 0.0)
+    assert rig.run() == (1, 1)
+    assert [rig.run()[0] for _ in range(3)] == [1, 1, 2]  # no F for stage 2: advance on the budget
+    assert np.isnan(rig.scores()[2]) and np.isnan(rig.scores()[0])
+    # While the approach controller moves the hand the stage clock stops and nothing is decided.
+    rig = SwitcherRig(budgets=(2, 2, 2, 2))
+    rig.switcher.GetInputPort("approach_active").FixValue(rig.context, [1.0])
+    rig.set(3.0, 0.0, 0.0)
+    assert rig.run(5) == (0, 0)
+    assert rig.scores()[1] == 3.0
+
+
+def test_switcher_every_tick_mode_counts_changes_only():
+    rig = SwitcherRig(every_tick=True)
+    rig.set(2.0, 0.0, 0.0)
+    assert rig.run() == (1, 1)
+    assert rig.run(3) == (1, 1)
+    rig.set(0.0, 0.0, 0.0)
+    assert rig.run() == (0, 2)
+
+
+# ------------------------------------------------------------------------------------- chain + station
+def test_load_chain_checkpoints(tmp_path):
+    (tmp_path / "stages" / "grasp").mkdir(parents=True)
+    (tmp_path / "feasibility").mkdir()
+    for name in ("best.pt", "last.pt"):
+        (tmp_path / "stages" / "grasp" / name).write_bytes(b"x")
+    (tmp_path / "feasibility" / "insert.pt").write_bytes(b"x")
+    found = LoadChainCheckpoints(tmp_path, ["orient", "grasp", "insert"])
+    assert found.policies == [None, tmp_path / "stages/grasp/best.pt", None]
+    assert found.feasibility == [None, None, tmp_path / "feasibility/insert.pt"]
+    assert len(found.missing) == 3 and "orient" in found.missing[0] and "feasibility" in found.missing[1]
+    with pytest.raises(ValueError, match="unknown task 'grab'"):
+        LoadChainCheckpoints(tmp_path, ["grab"])
+
+
+def test_chain_controller_runs_with_a_station(tmp_path):
+    config = FeasibilityConfig(history=3, d_model=16, heads=2, layers=1, feedforward=16)
+    f_path = save_feasibility(tmp_path / "insert.pt", build_feasibility_model(159, config), config, 1.0,
+                              observation_spec("grasp", 159), source_task="grasp", target_task="insert")
+    scenario = LoadScenario("building_blocks/grasp")
+    params = ChainParams(untrained_hidden_sizes=(32, 32))
+    stages = [("orient", None), ("grasp", None), ("insert", None)]
+    with pytest.raises(ValueError, match="Search stage needs a camera"):
+        MakeChainController(scenario, [("search", None)], params=params)
+    with pytest.raises(ValueError, match=r"insert\.pt.*orient"):
+        MakeChainController(scenario, stages, [None, f_path, None], params=params)  # F^grasp scores grasp histories
+    builder = DiagramBuilder()
+    station = builder.AddNamedSystem("station", MakeStation(scenario))
+    controller = builder.AddNamedSystem("chain", MakeChainController(scenario, stages, [None, None, f_path], params))
+    ConnectChainController(builder, station, controller)
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    from seqdex_drake.scene.objects import SceneObjects
+    from seqdex_drake.scene.piles import BOX_CENTER
+    from seqdex_drake.tasks.blocks_common import resting_pose
+
+    objects = SceneObjects(station, scenario)
+    objects.park(context)
+    objects.set_pose(context, "block_2", resting_pose(2, 0.0, 0.0, 0.3, BOX_CENTER[:2]))
+    plant = station.GetSubsystemByName("plant")
+    body = plant.GetBodyByName("block", plant.GetModelInstanceByName("block_2"))
+    SetChainTarget(controller, context, int(body.index()), goal=[0.5, 0.1, 0.6, 1, 0, 0, 0])
+    simulator.Initialize()
+    simulator.AdvanceTo(0.5)
+    chain_context = controller.GetMyContextFromRoot(context)
+    sizes = {"franka.desired_state": 14, "allegro.desired_state": 32, "active_stage": 1, "feasibility_scores": 3,
+             "approach_active": 1, "action": 19}
+    for name, size in sizes.items():
+        value = controller.GetOutputPort(name).Eval(chain_context)
+        assert value.shape == (size,), name
+    scores = controller.GetOutputPort("feasibility_scores").Eval(chain_context)
+    assert np.isnan(scores[:2]).all() and np.isfinite(scores[2])
+    assert np.all(np.isfinite(controller.GetOutputPort("franka.desired_state").Eval(chain_context)))
+    assert controller.GetOutputPort("approach_active").Eval(chain_context)[0] == 1.0  # the hand is still on its way
+    target = controller.GetOutputPort("approach_target").Eval(chain_context)
+    np.testing.assert_allclose(target, plant.EvalBodyPoseInWorld(plant.GetMyContextFromRoot(context), body)
+                               @ body.default_com(), atol=1e-9)
