@@ -12,6 +12,16 @@ with automatic reset; a finished episode's last observation is ``info["final_obs
 Observation normalization: the statistics stay fixed during a rollout and its update (so the update's first
 probability ratios are exactly 1) and absorb the rollout's observations after the gradient steps.
 The critic reads the actor's observation; the model's ``critic_obs_dim`` hook is not fed by ``collect`` yet.
+
+Non-finite values never reach the buffer: a NaN / inf observation, final observation or reward from the env
+(sub-task envs already turn simulator failures into truncations with finite observations) is replaced by 0 and
+counted (``nonfinite_values``, logged as ``charts/nonfinite_env_values``).
+
+Exact resume: if the vector env has ``state_dict()`` / ``load_state_dict()`` (the toy env does; Drake vector envs
+do not, their simulator state is not captured), checkpoints also hold its state, the observation the policy acts
+on next and the running episode sums, and :meth:`PPO.train` on a resumed learner restores them into the env it is
+given, so a killed and resumed run continues exactly as an uninterrupted one. Otherwise the resumed run starts
+fresh episodes (seeded by the config seed and the step count).
 """
 
 import dataclasses
@@ -78,6 +88,9 @@ class PPO:
         self.buffer: RolloutBuffer | None = None
         self._env = None
         self._next_obs: torch.Tensor | None = None
+        self._saved_env_state: dict | None = None  # From a checkpoint; train() restores it into its env.
+        self.nonfinite_values = 0
+        """Non-finite observation / reward entries from the env replaced by 0 so far."""
 
     @classmethod
     def for_env(cls, config: PPOConfig, vec_env) -> "PPO":
@@ -91,6 +104,15 @@ class PPO:
     # ------------------------------------------------------------------------------------------ acting
     def _tensor(self, array) -> torch.Tensor:
         return torch.as_tensor(np.asarray(array), dtype=torch.float32, device=self.device)
+
+    def _finite(self, array) -> np.ndarray:
+        """``array`` with NaN / inf entries replaced by 0 (and counted in ``nonfinite_values``)."""
+        array = np.asarray(array)
+        bad = ~np.isfinite(array)
+        if bad.any():
+            self.nonfinite_values += int(bad.sum())
+            array = np.where(bad, 0.0, array).astype(array.dtype)
+        return array
 
     @torch.no_grad()
     def act(self, obs: torch.Tensor, deterministic: bool = False):
@@ -114,7 +136,7 @@ class PPO:
         """Starts fresh episodes on ``vec_env`` (seeded by the config seed and the step count)."""
         result = vec_env.reset(seed=self.config.seed + self.global_step)
         obs = result[0] if isinstance(result, tuple) else result
-        self._env, self._next_obs = vec_env, self._tensor(obs)
+        self._env, self._next_obs = vec_env, self._tensor(self._finite(obs))
         self.stats.reset_envs(len(obs))
 
     # ----------------------------------------------------------------------------------------- rollout
@@ -137,6 +159,7 @@ class PPO:
             obs = self._next_obs
             actions, log_probs, means, values = self.act(obs)
             next_obs, rewards, terminated, truncated, infos = vec_env.step(self._env_actions(actions))
+            next_obs, rewards = self._finite(next_obs), self._finite(np.asarray(rewards, dtype=np.float64))
             terminated, truncated = np.asarray(terminated, dtype=bool), np.asarray(truncated, dtype=bool)
             final_values = torch.zeros(num_envs, device=self.device)
             bootstrap = np.flatnonzero(truncated & ~terminated)
@@ -144,14 +167,18 @@ class PPO:
                 if any("final_observation" not in infos[i] for i in bootstrap):
                     raise KeyError("a truncated episode's info lacks 'final_observation'; the vector env must "
                                    "autoreset SB3-style (see seqdex_drake.envs.vector)")
-                final_obs = self._tensor(np.stack([infos[i]["final_observation"] for i in bootstrap]))
+                final_obs = self._tensor(self._finite(np.stack([infos[i]["final_observation"] for i in bootstrap])))
                 with torch.no_grad():
                     final_values[torch.as_tensor(bootstrap, device=self.device)] = self.model.value(final_obs)
             self.buffer.add(obs, actions, log_probs, means, rewards, terminated, truncated, values, final_values)
-            self.stats.record_step(np.asarray(rewards, dtype=np.float64), terminated, truncated, infos)
+            self.stats.record_step(rewards, terminated, truncated, infos)
             self._next_obs = self._tensor(next_obs)
             self.global_step += num_envs
-        return self.stats.rollout_metrics()
+        metrics = self.stats.rollout_metrics()
+        metrics["charts/nonfinite_env_values"] = float(self.nonfinite_values)
+        if hasattr(vec_env, "lost_episodes"):  # Episodes cut short by a restarted worker (envs.vector_base).
+            metrics["charts/lost_episodes"] = float(vec_env.lost_episodes)
+        return metrics
 
     # ------------------------------------------------------------------------------------------ update
     def _set_learning_rate(self, learning_rate: float) -> None:
@@ -216,6 +243,8 @@ class PPO:
         beats the best so far. Returns the last update's metrics.
         """
         total_steps = total_steps or self.config.total_steps
+        if self._saved_env_state is not None and vec_env is not self._env:
+            self._restore_env(vec_env, self._saved_env_state)
         run_dir = Path(run_dir)
         run_dir.mkdir(parents=True, exist_ok=True)
         writer = SummaryWriter(str(run_dir))
@@ -248,9 +277,34 @@ class PPO:
         return metrics
 
     # ------------------------------------------------------------------------------------- checkpoints
+    def _env_state(self) -> dict | None:
+        """The attached env's state, the next observation and the running episode sums, if the env has a
+        ``state_dict()``; else None."""
+        if self._env is None or self._next_obs is None or not callable(getattr(self._env, "state_dict", None)):
+            return None
+        return {"vec_env": self._env.state_dict(), "next_obs": self._next_obs.cpu().clone(),
+                "running_return": self.stats._running_return.tolist(),
+                "running_length": self.stats._running_length.tolist()}
+
+    def _restore_env(self, vec_env, saved: dict) -> None:
+        """Puts ``vec_env`` and the learner back where the checkpoint left them (or leaves ``vec_env`` to be
+        reset by :meth:`collect` if it cannot load a state)."""
+        self._saved_env_state = None
+        if not callable(getattr(vec_env, "load_state_dict", None)):
+            return
+        if len(vec_env) != len(saved["next_obs"]):
+            raise ValueError(f"the checkpoint was written with {len(saved['next_obs'])} envs, the vector env "
+                             f"has {len(vec_env)}; resume with the same num_envs")
+        vec_env.load_state_dict(saved["vec_env"])
+        self._env, self._next_obs = vec_env, saved["next_obs"].to(self.device)
+        self.stats.reset_envs(len(vec_env))
+        self.stats._running_return[:] = saved["running_return"]
+        self.stats._running_length[:] = saved["running_length"]
+
     def state_dict(self) -> dict:
         """Everything needed to continue training exactly (see ``seqdex_drake.rl.checkpoint``)."""
         bounds = None if self.action_low is None else (self.action_low.tolist(), self.action_high.tolist())
+        env_state = self._env_state()
         return {
             "model": self.model.state_dict(),
             "optimizer": self.optimizer.state_dict(),
@@ -261,10 +315,13 @@ class PPO:
             "rng": capture_rng_state({"policy": self.generator}),
             "best": dict(self.best),
             "stats": self.stats.state_dict(),
+            **({} if env_state is None else {"env": env_state}),
+            "nonfinite_values": self.nonfinite_values,
         }
 
     def load_state_dict(self, state: dict) -> None:
-        """Restores :meth:`state_dict`'s output; the next :meth:`collect` starts fresh episodes on its env."""
+        """Restores :meth:`state_dict`'s output. :meth:`train` then restores the saved env state into its env if
+        both have one; otherwise (and for a bare :meth:`collect`) the next rollout starts fresh episodes."""
         self.model.load_state_dict(state["model"])
         self.optimizer.load_state_dict(state["optimizer"])
         counters = state["counters"]
@@ -274,6 +331,8 @@ class PPO:
         self.stats.load_state_dict(state["stats"])
         restore_rng_state(state["rng"], {"policy": self.generator})
         self._env, self._next_obs, self.buffer = None, None, None
+        self._saved_env_state = state.get("env")
+        self.nonfinite_values = int(state.get("nonfinite_values", 0))
 
     def save(self, path: str | Path) -> Path:
         """Writes a full-state checkpoint atomically."""

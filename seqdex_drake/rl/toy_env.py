@@ -87,5 +87,21 @@ class TargetVectorEnv:
             infos.append(info)
         return np.stack(observations), rewards, terminated, truncated, infos
 
+    def state_dict(self) -> dict:
+        """Everything that determines the next steps (random streams, step counts, returns) as plain data, so a
+        checkpoint can resume the env exactly (see :meth:`seqdex_drake.rl.ppo.PPO.train`)."""
+        return {"rngs": [rng.bit_generator.state for rng in self._rngs], "steps": self._steps.tolist(),
+                "returns": self._returns.tolist(), "reset_once": self._reset_once}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restores :meth:`state_dict`'s output (same ``num_envs``)."""
+        if len(state["rngs"]) != self.num_envs:
+            raise ValueError(f"the state is of {len(state['rngs'])} envs, this env has {self.num_envs}")
+        for rng, rng_state in zip(self._rngs, state["rngs"], strict=True):
+            rng.bit_generator.state = rng_state
+        self._steps[:] = state["steps"]
+        self._returns[:] = state["returns"]
+        self._reset_once = bool(state["reset_once"])
+
     def close(self) -> None:
         """Nothing to release (API parity with ProcessVectorEnv)."""
