@@ -16,17 +16,22 @@ from seqdex_drake import (
     LoadChainCheckpoints,
     LoadScenario,
     MakeChainController,
+    MakeControllerPlant,
     MakeStation,
     SetChainTarget,
 )
-from seqdex_drake.chaining.feasibility import FeasibilityConfig, build_feasibility_model, save_feasibility
+from seqdex_drake.chaining.feasibility import FeasibilityConfig, build_feasibility_model, save_feasibility, score
 from seqdex_drake.cli import observation_spec
 from seqdex_drake.rl.config import PPOConfig
 from seqdex_drake.rl.networks import ActorCritic
 from seqdex_drake.rl.ppo import PPO
-from seqdex_drake.robots.allegro import scale_action_to_limits, unscale_limits_to_action
+from seqdex_drake.robots.allegro import p_PalmHc_Palm, scale_action_to_limits, unscale_limits_to_action
+from seqdex_drake.robots.arm_ik import PalmIK
+from seqdex_drake.scene.objects import SceneObjects
+from seqdex_drake.scene.piles import BOX_CENTER
 from seqdex_drake.systems.policy import PolicyParams, PolicySystem
-from seqdex_drake.systems.switcher import FeasibilitySwitcher, SwitcherParams, walk_back
+from seqdex_drake.systems.switcher import FeasibilitySwitcher, SwitcherParams, feasibility_score, walk_back
+from seqdex_drake.tasks.blocks_common import resting_pose
 
 PERIOD = 1.0 / 60.0
 
@@ -158,6 +163,16 @@ def test_walk_back_picks_the_last_feasible_stage():
     assert walk_back(np.array([np.nan, 0.5, np.nan, 1.0])) == 0  # c must exceed 1; NaN never does
 
 
+def test_fast_score_equals_chaining_score():
+    config = FeasibilityConfig(history=4, d_model=16, heads=2, layers=1, feedforward=16)
+    model = build_feasibility_model(20, config).eval()
+    f = types.SimpleNamespace(model=model, threshold=2.5, config=config)
+    rng = np.random.default_rng(1)
+    for steps in (1, 3, 4, 6):  # shorter histories are left-padded, longer ones cut
+        history = rng.normal(size=(steps, 20))
+        assert feasibility_score(f, history) == pytest.approx(score(model, history, 2.5), rel=1e-6, abs=1e-7)
+
+
 def test_switcher_forward_bypass_recovery_restart():
     rig = SwitcherRig()
     assert rig.run() == (0, 0)
@@ -235,44 +250,60 @@ def test_load_chain_checkpoints(tmp_path):
 
 def test_chain_controller_runs_with_a_station(tmp_path):
     config = FeasibilityConfig(history=3, d_model=16, heads=2, layers=1, feedforward=16)
-    f_path = save_feasibility(tmp_path / "insert.pt", build_feasibility_model(159, config), config, 1.0,
+    # h far above any untrained output: c^insert ~ 0, so the chain restarts when Grasp's budget ends.
+    f_path = save_feasibility(tmp_path / "insert.pt", build_feasibility_model(159, config), config, 1e6,
                               observation_spec("grasp", 159), source_task="grasp", target_task="insert")
     scenario = LoadScenario("building_blocks/grasp")
-    params = ChainParams(untrained_hidden_sizes=(32, 32))
+    params = ChainParams(untrained_hidden_sizes=(32, 32), switcher=SwitcherParams(stage_steps=(10, 10, 10)))
     stages = [("orient", None), ("grasp", None), ("insert", None)]
     with pytest.raises(ValueError, match="Search stage needs a camera"):
         MakeChainController(scenario, [("search", None)], params=params)
     with pytest.raises(ValueError, match=r"insert\.pt.*orient"):
-        MakeChainController(scenario, stages, [None, f_path, None], params=params)  # F^grasp scores grasp histories
+        MakeChainController(scenario, stages, [None, f_path, None], params=params)  # F^insert scores grasp histories
     builder = DiagramBuilder()
     station = builder.AddNamedSystem("station", MakeStation(scenario))
     controller = builder.AddNamedSystem("chain", MakeChainController(scenario, stages, [None, None, f_path], params))
     ConnectChainController(builder, station, controller)
-    diagram = builder.Build()
-    simulator = Simulator(diagram)
+    simulator = Simulator(builder.Build())
     context = simulator.get_mutable_context()
-    from seqdex_drake.scene.objects import SceneObjects
-    from seqdex_drake.scene.piles import BOX_CENTER
-    from seqdex_drake.tasks.blocks_common import resting_pose
-
     objects = SceneObjects(station, scenario)
     objects.park(context)
     objects.set_pose(context, "block_2", resting_pose(2, 0.0, 0.0, 0.3, BOX_CENTER[:2]))
     plant = station.GetSubsystemByName("plant")
+    plant_context = plant.GetMyMutableContextFromRoot(context)
     body = plant.GetBodyByName("block", plant.GetModelInstanceByName("block_2"))
+    p_WBcm = plant.EvalBodyPoseInWorld(plant_context, body) @ body.default_com()
+    # Start at the hover pose (hand centre 5 cm above the block, palm down), as the sub-task resets do.
+    ik = PalmIK(MakeControllerPlant(scenario), p_PalmC_Palm=p_PalmHc_Palm)
+    home = np.asarray(scenario.robot.arm_home)
+    q_hover, error = ik.solve(home, p_WBcm + [0, 0, 0.05], ik.palm_pose(home).rotation())
+    assert error < 1e-3
+    plant.SetPositions(plant_context, plant.GetModelInstanceByName("franka"), q_hover)
+    with pytest.raises(ValueError, match="pass goal="):
+        SetChainTarget(controller, context, int(body.index()))
     SetChainTarget(controller, context, int(body.index()), goal=[0.5, 0.1, 0.6, 1, 0, 0, 0])
     simulator.Initialize()
-    simulator.AdvanceTo(0.5)
+    simulator.AdvanceTo(0.5)  # ticks 0..29: approach done at tick 0, orient 10 ticks, grasp 10, restart
     chain_context = controller.GetMyContextFromRoot(context)
+
+    def out(name):
+        return controller.GetOutputPort(name).Eval(chain_context)
+
     sizes = {"franka.desired_state": 14, "allegro.desired_state": 32, "active_stage": 1, "feasibility_scores": 3,
-             "approach_active": 1, "action": 19}
-    for name, size in sizes.items():
-        value = controller.GetOutputPort(name).Eval(chain_context)
-        assert value.shape == (size,), name
-    scores = controller.GetOutputPort("feasibility_scores").Eval(chain_context)
-    assert np.isnan(scores[:2]).all() and np.isfinite(scores[2])
-    assert np.all(np.isfinite(controller.GetOutputPort("franka.desired_state").Eval(chain_context)))
-    assert controller.GetOutputPort("approach_active").Eval(chain_context)[0] == 1.0  # the hand is still on its way
-    target = controller.GetOutputPort("approach_target").Eval(chain_context)
-    np.testing.assert_allclose(target, plant.EvalBodyPoseInWorld(plant.GetMyContextFromRoot(context), body)
-                               @ body.default_com(), atol=1e-9)
+             "approach_active": 1, "action": 19, "executing_stage": 1, "switches_used": 1, "approach_target": 3}
+    assert {name: out(name).shape for name in sizes} == {name: (size,) for name, size in sizes.items()}
+    assert np.isnan(out("feasibility_scores")[:2]).all() and abs(out("feasibility_scores")[2]) < 1e-2
+    assert out("approach_active")[0] == 0.0
+    assert (out("active_stage")[0], out("executing_stage")[0], out("switches_used")[0]) == (0, 0, 1)
+    policy = controller.GetSubsystemByName("policy.0")
+    policy_context = policy.GetMyContextFromRoot(context)
+    np.testing.assert_allclose(out("allegro.desired_state")[:16], policy.GetOutputPort("hand_target").Eval(
+        policy_context))
+    np.testing.assert_allclose(out("action"), policy.GetOutputPort("action").Eval(policy_context))
+    assembler = controller.GetSubsystemByName("observation.base")  # its previous action is the applied raw one
+    np.testing.assert_allclose(assembler.GetOutputPort("observation").Eval(assembler.GetMyContextFromRoot(
+        context))[124:143], policy.GetOutputPort("raw_action").Eval(policy_context))
+    arm = out("franka.desired_state")
+    assert np.all(np.isfinite(arm)) and np.linalg.norm(arm[:7] - q_hover) < 0.05  # untrained: small wrist moves
+    np.testing.assert_allclose(out("approach_target"), plant.EvalBodyPoseInWorld(
+        plant_context, body) @ body.default_com(), atol=1e-9)

@@ -63,6 +63,10 @@ class ChainParams:
     """Stage i without a checkpoint gets a freshly initialised policy seeded ``untrained_seed + i``."""
     untrained_hidden_sizes: tuple[int, ...] = PAPER_HIDDEN_SIZES
     """Actor hidden sizes of untrained policies."""
+    torch_threads: int | None = 1
+    """If set, ``torch.set_num_threads`` (process-wide!) when the controller is built: batch-1 inference is
+    fastest on one thread, and spinning OpenMP workers compete with the simulation for the cores (measured:
+    an F forward pass took 25 ms with 2 threads and 4 ms with 1 on a loaded 2-core machine). None: leave it."""
 
 
 @dataclasses.dataclass
@@ -182,6 +186,10 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
     from seqdex_drake.tasks.registry import default_config
 
     params = params or ChainParams()
+    if params.torch_threads:
+        import torch
+
+        torch.set_num_threads(params.torch_threads)
     tasks = [_check_task(task) for task, _ in stages]
     if not tasks:
         raise ValueError("a chain needs at least one stage")
@@ -305,6 +313,9 @@ def SetChainTarget(controller: Diagram, root_context: Context, object_body: int,
     with a goal: Insert, tool Reorient; also the approach target of those stages) and its render label
     (default: the body index, which is how the station's plant labels geometry)."""
     target = ObservationTarget(object_body=int(object_body), label=int(object_body if label is None else label))
+    if goal is None and controller.HasSubsystemNamed("observation.goal"):
+        raise ValueError("this chain has a stage with a goal pose (Insert / tool Reorient): pass goal=[x, y, z, qw, "
+                         "qx, qy, qz] to SetChainTarget")
     if goal is not None:
         goal = np.asarray(goal, dtype=float)
         if goal.shape != (7,) or not np.all(np.isfinite(goal)):

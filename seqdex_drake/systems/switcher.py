@@ -32,11 +32,25 @@ import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
+import torch
 from pydrake.systems.framework import BasicVector, Context, DiscreteValues, LeafSystem
 
-from seqdex_drake.chaining.feasibility import score
+from seqdex_drake.chaining.feasibility import pad_history, score
 
 _STAGE, _STEPS, _SWITCHES = 0, 1, 2
+
+
+def feasibility_score(f, history: np.ndarray) -> float:
+    """c = F(history) / h for one (T, obs_dim) history. A feasibility model in eval mode runs directly under
+    ``torch.inference_mode`` (what ``score`` computes, without its per-call train/eval toggling, which cost
+    about as much as the forward pass); anything else goes through ``chaining.feasibility.score``."""
+    model = f.model
+    if isinstance(model, torch.nn.Module) and hasattr(model, "forward_normalized") and not model.training:
+        batch = pad_history(np.asarray(history, dtype=np.float32)[None], int(f.config.input_length))
+        with torch.inference_mode():
+            value = float(model(torch.as_tensor(batch, device=model.obs_mean.device))[0])
+        return value / float(f.threshold)
+    return float(score(model, history, f.threshold))
 
 
 @dataclasses.dataclass
@@ -105,6 +119,8 @@ class FeasibilitySwitcher(LeafSystem):
             if model_dim != size:
                 raise ValueError(f"the feasibility function of stage {stage} reads {model_dim}-dim histories, but "
                                  f"stage {source}'s observation has {size}; use the F trained on that stage")
+            if isinstance(f.model, torch.nn.Module):
+                f.model.eval()  # Inference only (no dropout).
             length = int(f.config.input_length)
             self._history_shape[source] = (length, size)
             self._history_ports[source] = self.DeclareVectorInputPort(f"observation.{source}", size)
@@ -182,7 +198,7 @@ class FeasibilitySwitcher(LeafSystem):
         for stage in range(1, self.num_stages):
             f = self._feasibility[stage]
             if f is not None:
-                scores[stage] = float(score(f.model, histories[stage - 1], f.threshold))
+                scores[stage] = feasibility_score(f, histories[stage - 1])
         discrete_state.set_value(self._scores_index, scores)
         status = context.get_discrete_state(self._status_index).get_value().copy()
         if self._approach_port.HasValue(context) and self._approach_port.Eval(context)[0] > 0.5:

@@ -1,0 +1,179 @@
+"""Runtime of the chain controller: one 60 Hz tick of switcher + policies, and the real-time factor of a chain.
+
+Part 1 (tick): 4 paper-size policies (actor MLPs [1024, 1024, 512], untrained weights; Search 160, Orient 159,
+Grasp 159, Insert 173 inputs) all active, plus the switcher with F^2..F^4 (the attention model, H = 10, default
+width) on constant observations, stepped by a Drake Simulator; the wall time per tick is ``tick_ms``. The chain
+itself runs only the executing stage's policy per tick: ``tick_ms_one_policy`` times switcher + 1 policy.
+``policy_ms`` / ``feasibility_ms`` are single forward passes.
+
+Part 2 (real time): the ``building_blocks/grasp`` station with the chain controller (Orient, Grasp, Insert,
+untrained paper-size policies, F^Grasp and F^Insert with H = 10), a block in the box, simulated for
+``--seconds``; ``realtime_factor`` = simulated / wall seconds, without Meshcat and with it
+(``realtime_factor_meshcat``; null when Meshcat cannot start). ``station_realtime_factor`` is the station with
+constant targets, for comparison. Goals (reported, not asserted): tick <= 1 ms, real time >= 1.0.
+
+Every figure is also given per process-CPU second (``*_cpu``): on a shared machine wall time includes waiting
+for a core, CPU time does not (torch runs on one thread here, so CPU time is close to idle wall time).
+
+    python benchmarks/chain_runtime.py [--ticks 300] [--seconds 3] [--threads N] [--test]
+
+The last line printed is one JSON object.
+"""
+
+import argparse
+import json
+import time
+
+import numpy as np
+import torch
+from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource
+
+from seqdex_drake import (
+    ChainParams,
+    ConnectChainController,
+    LoadScenario,
+    MakeChainController,
+    MakeStation,
+    SetChainTarget,
+)
+from seqdex_drake.chaining.feasibility import FeasibilityConfig, FeasibilityFile, build_feasibility_model
+from seqdex_drake.chaining.spec import ObservationSpec
+from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q
+from seqdex_drake.scene.objects import SceneObjects
+from seqdex_drake.scene.piles import BOX_CENTER
+from seqdex_drake.systems.policy import PolicyParams, PolicySystem
+from seqdex_drake.systems.switcher import FeasibilitySwitcher
+from seqdex_drake.tasks.blocks_common import resting_pose
+
+PERIOD = 1.0 / 60.0
+SIZES = {"search": 160, "orient": 159, "grasp": 159, "insert": 173}
+
+
+def untrained_f(source: str, target: str, obs_dim: int, history: int = 10) -> FeasibilityFile:
+    """An untrained attention F (paper width, H = ``history``) with h = 1, for timing."""
+    config = FeasibilityConfig(history=history)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(0)
+        model = build_feasibility_model(obs_dim, config).eval()
+    return FeasibilityFile(model, config, 1.0, ObservationSpec(obs_dim, source), source, target, {})
+
+
+def time_tick(ticks: int, num_policies: int, seed: int = 0) -> tuple[float, float]:
+    """Wall and process-CPU milliseconds per tick of switcher + ``num_policies`` always-active policies."""
+    tasks = list(SIZES)
+    sizes = [SIZES[t] for t in tasks]
+    feasibility = [None] + [untrained_f(tasks[i - 1], tasks[i], sizes[i - 1]) for i in range(1, len(tasks))]
+    builder = DiagramBuilder()
+    rng = np.random.default_rng(seed)
+    sources = [builder.AddSystem(ConstantVectorSource(rng.normal(size=size))) for size in sizes]
+    switcher = builder.AddSystem(FeasibilitySwitcher(feasibility, sizes, [10**6] * 4, PERIOD))
+    for i in range(1, len(tasks)):
+        builder.Connect(sources[i - 1].get_output_port(), switcher.GetInputPort(f"observation.{i - 1}"))
+    for i in range(num_policies):
+        policy = builder.AddSystem(PolicySystem.untrained(sizes[i], seed=i, params=PolicyParams(PERIOD)))
+        builder.Connect(sources[i].get_output_port(), policy.GetInputPort("observation"))
+    simulator = Simulator(builder.Build())
+    simulator.Initialize()
+    simulator.AdvanceTo(10 * PERIOD)  # warm-up (allocations, first-call overheads)
+    start, cpu_start = time.perf_counter(), time.process_time()
+    simulator.AdvanceTo((10 + ticks) * PERIOD)
+    return (time.perf_counter() - start) / ticks * 1e3, (time.process_time() - cpu_start) / ticks * 1e3
+
+
+def time_forward(module, make_input, repeats: int) -> float:
+    """Wall milliseconds of one inference call."""
+    x = make_input()
+    with torch.inference_mode():
+        for _ in range(5):
+            module(x)
+        start = time.perf_counter()
+        for _ in range(repeats):
+            module(x)
+    return (time.perf_counter() - start) / repeats * 1e3
+
+
+def realtime_factor(seconds: float, meshcat=None, chain: bool = True) -> tuple[float, float]:
+    """Simulated / wall seconds and simulated / process-CPU seconds of the Grasp station with the chain
+    controller (or with constant targets)."""
+    scenario = LoadScenario("building_blocks/grasp")
+    builder = DiagramBuilder()
+    station = builder.AddNamedSystem("station", MakeStation(scenario, meshcat=meshcat))
+    if chain:
+        stages = [("orient", None), ("grasp", None), ("insert", None)]
+        feasibility = [None, untrained_f("orient", "grasp", 159), untrained_f("grasp", "insert", 159)]
+        controller = builder.AddNamedSystem("chain", MakeChainController(scenario, stages, feasibility,
+                                                                         ChainParams(), meshcat=meshcat))
+        ConnectChainController(builder, station, controller)
+    else:
+        arm = builder.AddSystem(ConstantVectorSource(np.r_[scenario.robot.arm_home, np.zeros(7)]))
+        hand = builder.AddSystem(ConstantVectorSource(np.r_[ALLEGRO_OPEN_Q, np.zeros(16)]))
+        builder.Connect(arm.get_output_port(), station.GetInputPort("franka.desired_state"))
+        builder.Connect(hand.get_output_port(), station.GetInputPort("allegro.desired_state"))
+    simulator = Simulator(builder.Build())
+    ApplySimulatorConfig(scenario.simulator_config, simulator)
+    context = simulator.get_mutable_context()
+    objects = SceneObjects(station, scenario)
+    objects.park(context)
+    objects.set_pose(context, "block_2", resting_pose(2, 0.0, 0.0, 0.3, BOX_CENTER[:2] + [0.03, 0.05]))
+    if chain:
+        plant = station.GetSubsystemByName("plant")
+        body = plant.GetBodyByName("block", plant.GetModelInstanceByName("block_2"))
+        SetChainTarget(controller, context, int(body.index()), goal=[0.45, 0.1, 0.65, 1.0, 0.0, 0.0, 0.0])
+    simulator.Initialize()
+    simulator.AdvanceTo(0.1)  # warm-up
+    start, cpu_start = time.perf_counter(), time.process_time()
+    simulator.AdvanceTo(0.1 + seconds)
+    return seconds / (time.perf_counter() - start), seconds / (time.process_time() - cpu_start)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--ticks", type=int, default=300, help="ticks timed in part 1")
+    parser.add_argument("--seconds", type=float, default=3.0, help="simulated seconds per run in part 2")
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (0: torch's default); the "
+                        "chain controller sets 1 itself (ChainParams.torch_threads) for part 2")
+    parser.add_argument("--no-meshcat", action="store_true", help="skip the run with Meshcat")
+    parser.add_argument("--test", action="store_true", help="a few ticks and 0.2 s: checks the script runs")
+    args = parser.parse_args()
+    ticks, seconds = (20, 0.2) if args.test else (args.ticks, args.seconds)
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    results = {"torch_threads": torch.get_num_threads(), "ticks": ticks, "sim_seconds": seconds}
+
+    policy = PolicySystem.untrained(159).model
+    results["policy_ms"] = time_forward(policy.action_mean, lambda: torch.zeros(1, 159), 10 * ticks)
+    f = untrained_f("orient", "grasp", 159).model
+    results["feasibility_ms"] = time_forward(f, lambda: torch.zeros(1, 10, 159), 10 * ticks)
+    results["tick_ms"], results["tick_cpu_ms"] = time_tick(ticks, num_policies=4)
+    results["tick_ms_one_policy"], results["tick_cpu_ms_one_policy"] = time_tick(ticks, num_policies=1)
+    print(f"one tick, switcher (3 F, H=10) + 4 policies: {results['tick_ms']:.3f} ms wall, "
+          f"{results['tick_cpu_ms']:.3f} ms CPU (goal <= 1 ms); + 1 policy: {results['tick_ms_one_policy']:.3f} ms "
+          f"wall, {results['tick_cpu_ms_one_policy']:.3f} ms CPU; policy forward {results['policy_ms']:.3f} ms, "
+          f"F forward {results['feasibility_ms']:.3f} ms; torch threads {results['torch_threads']}", flush=True)
+
+    results["station_realtime_factor"], results["station_realtime_factor_cpu"] = realtime_factor(seconds, chain=False)
+    results["realtime_factor"], results["realtime_factor_cpu"] = realtime_factor(seconds)
+    print(f"real-time factor over {seconds} s: station + chain {results['realtime_factor']:.3f} wall, "
+          f"{results['realtime_factor_cpu']:.3f} by CPU time (goal >= 1.0); station with constant targets "
+          f"{results['station_realtime_factor']:.3f} wall, {results['station_realtime_factor_cpu']:.3f} CPU",
+          flush=True)
+    results["realtime_factor_meshcat"] = results["realtime_factor_meshcat_cpu"] = None
+    if not args.no_meshcat:
+        try:
+            from pydrake.geometry import StartMeshcat
+
+            meshcat = StartMeshcat()
+        except RuntimeError as error:
+            print(f"Meshcat did not start ({error}); skipping the Meshcat run")
+        else:
+            results["realtime_factor_meshcat"], results["realtime_factor_meshcat_cpu"] = realtime_factor(
+                seconds, meshcat=meshcat)
+            print(f"with Meshcat: {results['realtime_factor_meshcat']:.3f} wall, "
+                  f"{results['realtime_factor_meshcat_cpu']:.3f} CPU")
+    print(json.dumps({key: round(value, 4) if isinstance(value, float) else value for key, value in results.items()}))
+
+
+if __name__ == "__main__":
+    main()
