@@ -1,74 +1,184 @@
-"""Simulate a Sequential Dexterity task in Drake, shown live in meshcat.
+"""Run a whole Sequential Dexterity task in Drake, live in meshcat.
 
-Today this runs the Building Blocks station with the 72 blocks settled in the box (a cached pile) and the
-robot holding its home pose; the sub-policies and the feasibility switcher join it as they are trained
-(see README). Far-away blocks are frozen until the hand comes near (see seqdex_drake/scene/freezing.py).
+Building Blocks (default): the blocks of an assembly manual (``diagrams/manuals/``), one after another, each
+Search -> Orient -> Grasp -> Insert onto its goal on the baseplate. Tool Positioning: the hammer, grasp ->
+reorient. The sub-policies and feasibility functions come from a chain run directory (``--checkpoints``:
+``stages/<task>/best.pt|last.pt``, ``feasibility/<task>.pt``); missing files mean untrained stages, which are
+listed, and the chain still runs (untrained policies barely move the hand once the arm has approached).
 
-    python scripts/simulate_chain.py                   # meshcat in the browser, runs until Ctrl-C
-    python scripts/simulate_chain.py --headless --test # a short simulation, exits 0
+In the browser, the row of cubes on the far edge of the table shows the running stage (coloured and raised),
+the bars between them the feasibility scores c = F / h (green above the threshold slab c = 1); the control
+panel ("Open Controls") shows the stage as text and the scores as read-only sliders
+(``seqdex_drake/evaluation/display.py``).
+
+    python scripts/simulate_chain.py                                  # meshcat URL printed; Ctrl-C to stop
+    python scripts/simulate_chain.py --manual mixed_shapes --checkpoints runs/chain
+    python scripts/simulate_chain.py --task tool_positioning --record replay.html
+    python scripts/simulate_chain.py --test --headless                # a short run for CI, exits 0
 """
-
-from __future__ import annotations
 
 import argparse
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-from seqdex_drake import LoadScenario, ScenarioError
-from seqdex_drake.harness import MakeStationHarness
+#: Stage budgets (control ticks) and simulated seconds under --test.
+TEST_STAGE_STEPS = 6
+TEST_SECONDS = 1.0
 
 
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--scenario", default="building_blocks/search",
-                        help="scenario name, family/name (default: building_blocks/search)")
-    parser.add_argument("--scenario-text", default="{}", help="YAML overrides applied to the scenario")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (also picks the cached pile)")
-    parser.add_argument("--duration", type=float, default=float("inf"), help="simulated seconds (default: forever)")
+    parser.add_argument("--task", choices=["building_blocks", "tool_positioning"], default="building_blocks")
+    parser.add_argument("--manual", default="small_wall",
+                        help="assembly manual: a YAML file or a name in diagrams/manuals/ (default: small_wall)")
+    parser.add_argument("--checkpoints", metavar="RUN_DIR", help="chain run directory (default: all untrained)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (pile, tool yaw, untrained policies)")
+    parser.add_argument("--max-switches", type=int, default=3, help="feasibility switches per object (default 3)")
+    parser.add_argument("--duration", type=float, default=float("inf"),
+                        help="stop after this many simulated seconds (default: when the manual is done)")
     parser.add_argument("--headless", action="store_true", help="no meshcat")
-    parser.add_argument("--test", action="store_true", help="a short run for CI (0.5 s simulated)")
-    return parser.parse_args(argv)
+    parser.add_argument("--port", type=int, default=7000, help="meshcat port; a busy one falls back to a free one")
+    parser.add_argument("--record", metavar="HTML", help="save a standalone HTML replay of the run")
+    parser.add_argument("--test", action="store_true",
+                        help=f"a short run for CI: {TEST_SECONDS} s simulated, {TEST_STAGE_STEPS}-tick stages, "
+                             "small untrained networks; exits when done")
+    args = parser.parse_args(argv)
+    if args.max_switches < 0:
+        parser.error("--max-switches must be >= 0")
+    if args.record and args.headless:
+        parser.error("--record needs meshcat; drop --headless")
+    return args
+
+
+def start_meshcat(port: int):
+    """A Meshcat on ``port``, or on Drake's first free port (7000-7099) when that one is taken."""
+    from pydrake.geometry import Meshcat, MeshcatParams
+
+    try:
+        return Meshcat(MeshcatParams(port=port))
+    except RuntimeError:
+        meshcat = Meshcat()
+        print(f"meshcat: port {port} is busy; using port {meshcat.port()}", flush=True)
+        return meshcat
+
+
+def objects_to_run(args, runner, rng):
+    """(label, start function) per object: the manual's steps, or the hammer."""
+    if args.task == "tool_positioning":
+        return [("tool 1/1: hammer", lambda: runner.start_tool(0, rng))]
+    from seqdex_drake.manual import goal_vector
+
+    steps = args.manual_steps
+    return [(f"block {k + 1}/{len(steps)}: type {step.block_type}",
+             lambda step=step: runner.start_block(step.block_type, goal_vector(step))) for k, step in enumerate(steps)]
+
+
+def run(args) -> int:
+    from seqdex_drake.evaluation.runner import ChainRunError, ChainRunner, RunConfig
+    from seqdex_drake.manual import LoadManual, ManualError
+
+    if args.task == "building_blocks":
+        try:
+            args.manual_steps = LoadManual(args.manual).steps
+        except ManualError as error:
+            raise UserError(str(error)) from error
+    if args.checkpoints is not None and not Path(args.checkpoints).is_dir():
+        raise UserError(f"checkpoint directory {args.checkpoints} does not exist")
+    meshcat = None if args.headless else start_meshcat(args.port)
+    if meshcat is not None:
+        meshcat.SetCameraPose([1.45, -0.25, 1.35], [0.15, -0.05, 0.62])
+        print(f"meshcat: open {meshcat.web_url()} in a browser", flush=True)
+    families = {"building_blocks": 4, "tool_positioning": 2}
+    config = RunConfig(family=args.task, run_dir=args.checkpoints, max_switches=args.max_switches, seed=args.seed,
+                       stage_steps=(TEST_STAGE_STEPS,) * families[args.task] if args.test else None,
+                       untrained_hidden_sizes=(64, 64) if args.test else None)
+    print(f"building the {args.task} station and chain controller ...", flush=True)
+    try:
+        runner = ChainRunner(config, meshcat=meshcat)
+    except ChainRunError as error:
+        raise UserError(str(error)) from error
+    print(f"chain: {' -> '.join(runner.tasks)}", flush=True)
+    if runner.untrained:
+        print(f"untrained policies: {', '.join(runner.untrained)} (random initial weights; they will not "
+              f"succeed)", flush=True)
+        for line in runner.missing:
+            print(f"  {line}", flush=True)
+    else:
+        print("every stage has a trained policy", flush=True)
+    if args.record:
+        meshcat.StartRecording(set_visualizations_while_recording=True)
+    duration = TEST_SECONDS if args.test else args.duration
+    rng = np.random.default_rng(args.seed)
+    start, successes, interrupted = time.perf_counter(), 0, False
+    stage = [-1]
+
+    def on_tick(r) -> bool:
+        active = int(r.chain_output("active_stage")[0])
+        if active != stage[0]:
+            scores = r.chain_output("feasibility_scores")
+            shown = ", ".join(f"c[{t}]={c:.2f}" for t, c in zip(r.tasks, scores, strict=True) if np.isfinite(c))
+            print(f"  t={r.context.get_time():6.2f} s  stage {active + 1}/{len(r.tasks)}: {r.tasks[active]}"
+                  f"{'  (' + shown + ')' if shown else ''}", flush=True)
+            stage[0] = active
+        return r.context.get_time() < duration
+
+    try:
+        for label, begin in objects_to_run(args, runner, rng):
+            if runner.context.get_time() >= duration:
+                break
+            try:
+                name = begin()
+            except ChainRunError as error:
+                raise UserError(str(error)) from error
+            stage[0] = -1
+            print(f"{label} ({name})", flush=True)
+            if meshcat is not None and not args.test:
+                runner.simulator.set_target_realtime_rate(1.0)
+            outcome = runner.run(runner.episode_limit(), on_tick=on_tick)
+            successes += outcome.success
+            runner.set_completed(successes)
+            print(f"  {'placed' if outcome.success else 'not placed'} after {outcome.time:.2f} s "
+                  f"(error {outcome.position_error * 100:.1f} cm, {np.degrees(outcome.rotation_error):.0f} deg; "
+                  f"{outcome.switches} switch(es))", flush=True)
+    except KeyboardInterrupt:
+        interrupted = True
+    wall = time.perf_counter() - start
+    q = runner.objects.positions(runner.context)
+    finite = bool(np.all(np.isfinite(q)))
+    print(f"simulated {runner.context.get_time():.2f} s in {wall:.1f} s wall; {successes} object(s) placed; "
+          f"state finite: {finite}", flush=True)
+    if args.record:
+        meshcat.StopRecording()
+        meshcat.PublishRecording()
+        Path(args.record).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.record).write_text(meshcat.StaticHtml())
+        print(f"replay written to {args.record} ({Path(args.record).stat().st_size / 1e6:.1f} MB)", flush=True)
+    if meshcat is not None and not args.test and not interrupted:
+        print(f"done; meshcat keeps serving at {meshcat.web_url()} until Ctrl-C", flush=True)
+        try:
+            while True:
+                time.sleep(1.0)
+        except KeyboardInterrupt:
+            pass
+    return 0 if finite else 1
+
+
+class UserError(Exception):
+    """Bad input: printed as one line, exit status 2."""
 
 
 def main(argv=None) -> int:
     args = parse_args(argv)
     try:
-        scenario = LoadScenario(args.scenario, scenario_text=args.scenario_text)
-    except ScenarioError as error:
-        print(f"error: {error}", file=sys.stderr)
+        return run(args)
+    except UserError as error:
+        print(f"simulate_chain: error: {error}", file=sys.stderr)
         return 2
-    scenario.random_seed = args.seed
-    meshcat = None
-    if not args.headless:
-        from pydrake.geometry import StartMeshcat
-
-        meshcat = StartMeshcat()
-        print(f"meshcat: open {meshcat.web_url()} in a browser", flush=True)
-    try:
-        harness = MakeStationHarness(scenario, meshcat=meshcat)
-    except (ScenarioError, FileNotFoundError, ValueError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    print("policies: none trained yet; the robot holds its home pose "
-          "(sub-task training arrives with the learning stack)", flush=True)
-    duration = 0.5 if args.test else args.duration
-    if meshcat is not None and not args.test:
-        harness.simulator.set_target_realtime_rate(1.0)
-    start, steps = time.perf_counter(), 0
-    try:
-        while harness.context.get_time() < duration:
-            harness.step()
-            steps += 1
     except KeyboardInterrupt:
-        pass
-    wall = time.perf_counter() - start
-    q = harness.objects.positions(harness.context)
-    print(f"simulated {harness.context.get_time():.2f} s in {wall:.2f} s wall ({steps / max(wall, 1e-9):.0f} "
-          f"control steps/s); {len(q)} objects, {len(harness.objects.frozen_names(harness.context))} frozen; "
-          f"all finite: {bool(np.all(np.isfinite(q)))}", flush=True)
-    return 0 if np.all(np.isfinite(q)) else 1
+        return 130
 
 
 if __name__ == "__main__":

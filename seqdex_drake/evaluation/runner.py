@@ -1,0 +1,291 @@
+"""Runs a whole Sequential Dexterity task: one station scene, the chain controller, and per-object episodes.
+
+:class:`ChainRunner` builds the station of a task family (``building_blocks/chain``: pile box and baseplate;
+``tool_positioning/tool_grasp``: the table and the tools), the chain controller of that family's chain
+(``diagrams/chains.yaml``) from a chain run directory's checkpoints (missing files: untrained stages, listed in
+:attr:`ChainRunner.missing`), and, given a Meshcat, the chain status display (``evaluation/display.py``).
+An episode is one block (Search -> Orient -> Grasp -> Insert to a goal on the baseplate) or one tool
+(grasp -> reorient): :meth:`start_block` / :meth:`start_tool` set the target and goal and restart the chain,
+:meth:`run` steps at the control rate until the object reaches its goal or the time limit.
+
+Success (FACTS.md): a block within 0.02 m and 0.2 rad of its goal (a 180 deg yaw flip counts), a tool within
+0.5 rad of its goal orientation (the start pose flipped 180 deg about its long axis).
+"""
+
+import dataclasses
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource
+
+from seqdex_drake.chaining.chain import LoadChain
+from seqdex_drake.harness import ResolvePackageUrl
+from seqdex_drake.modeling.blocks import BLOCK_SPECS
+from seqdex_drake.modeling.tools import TOOL_SPECS
+from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q
+from seqdex_drake.scenario import LoadScenario
+from seqdex_drake.scene.objects import SceneObjects
+from seqdex_drake.scene.piles import BOX_CENTER, BOX_INNER_HALF, LoadPiles
+from seqdex_drake.station import MakeStation
+from seqdex_drake.systems.observations import pose_vector, quat_multiply
+from seqdex_drake.tasks.blocks_common import BOX_MARGIN
+from seqdex_drake.tasks.insert import YAW_FLIP
+from seqdex_drake.tasks.rewards import quaternion_angle
+from seqdex_drake.tasks.tools_common import TABLE_TOP, TOOL_XY
+
+#: Task family -> station scenario.
+SCENARIOS = {"building_blocks": "building_blocks/chain", "tool_positioning": "tool_positioning/tool_grasp"}
+BLOCK_TOLERANCE = (0.02, 0.2)
+TOOL_TOLERANCE = 0.5
+#: Where a tool's goal is: lifted this far above its start, held in hand.
+TOOL_GOAL_LIFT = 0.15
+
+
+class ChainRunError(ValueError):
+    """A chain run that cannot start (bad checkpoint, unknown object, ...); the message says what to fix."""
+
+
+@dataclasses.dataclass
+class RunConfig:
+    """What :class:`ChainRunner` builds."""
+
+    family: str = "building_blocks"
+    """``building_blocks`` or ``tool_positioning``."""
+    run_dir: str | None = None
+    """Chain run directory (``stages/<task>/best.pt|last.pt``, ``feasibility/<task>.pt``); None: all untrained."""
+    max_switches: int = 3
+    """Most feasibility switches per object (paper: 3 in simulation)."""
+    stage_steps: tuple[int, ...] | None = None
+    """Per-stage step budgets; None: each task's episode length."""
+    history: int | None = None
+    """Use the history-ablation F files ``feasibility/<task>_h<H>.pt`` instead of ``<task>.pt``."""
+    seed: int = 0
+    """Scenario seed (pile choice) and untrained-policy seed."""
+    untrained_hidden_sizes: tuple[int, ...] | None = None
+    """Hidden sizes of untrained policies (None: the paper's)."""
+
+
+@dataclasses.dataclass
+class Outcome:
+    """The result of one object's episode."""
+
+    success: bool
+    time: float
+    """Simulated seconds from the start of the episode."""
+    last_stage: int
+    switches: int
+    position_error: float
+    rotation_error: float
+
+
+class ChainRunner:
+    """A station + chain controller (+ display) for one task family (see the module docstring).
+
+    Args:
+        config: what to build.
+        meshcat: optional Meshcat: the scene and the chain status are shown there.
+    """
+
+    def __init__(self, config: RunConfig, meshcat=None):
+        from seqdex_drake.systems.chain_controller import (
+            ChainParams,
+            ConnectChainController,
+            GetChainPolicies,
+            LoadChainCheckpoints,
+            MakeChainController,
+        )
+        from seqdex_drake.systems.switcher import SwitcherParams
+
+        if config.family not in SCENARIOS:
+            raise ChainRunError(f"unknown task '{config.family}'; valid: {', '.join(SCENARIOS)}")
+        self.config = config
+        self.tasks = list(LoadChain(config.family).stages)
+        self.scenario = LoadScenario(SCENARIOS[config.family], scenario_text=f"{{random_seed: {config.seed}}}")
+        stages, feasibility, self.missing = [(task, None) for task in self.tasks], None, []
+        if config.run_dir is not None:
+            try:
+                found = LoadChainCheckpoints(config.run_dir, self.tasks)
+            except FileNotFoundError as error:
+                raise ChainRunError(str(error)) from error
+            stages, self.missing = found.stages, list(found.missing)
+            feasibility = self._feasibility_files(Path(config.run_dir), found.feasibility)
+        else:
+            self.missing = [f"stage {i} ({task}): no checkpoint directory given (--checkpoints); the stage runs "
+                            f"an untrained policy" for i, task in enumerate(self.tasks)]
+        params = ChainParams(switcher=SwitcherParams(max_switches=config.max_switches,
+                                                     stage_steps=config.stage_steps),
+                             untrained_seed=config.seed)
+        if config.untrained_hidden_sizes is not None:
+            params.untrained_hidden_sizes = tuple(config.untrained_hidden_sizes)
+        builder = DiagramBuilder()
+        self.station = builder.AddNamedSystem("station", MakeStation(self.scenario, meshcat=meshcat))
+        try:
+            controller = MakeChainController(self.scenario, stages, feasibility, params)
+        except (ValueError, FileNotFoundError, RuntimeError) as error:
+            raise ChainRunError(str(error)) from error
+        self.controller = builder.AddNamedSystem("chain", controller)
+        ConnectChainController(builder, self.station, self.controller)
+        self.display = None
+        self._completed = builder.AddNamedSystem("completed", ConstantVectorSource(np.zeros(1)))
+        if meshcat is not None:
+            from seqdex_drake.evaluation.display import ChainStatusDisplay
+
+            self.display = builder.AddNamedSystem("chain_status", ChainStatusDisplay(meshcat, self.tasks))
+            builder.Connect(self.controller.GetOutputPort("active_stage"), self.display.GetInputPort("active_stage"))
+            builder.Connect(self.controller.GetOutputPort("feasibility_scores"),
+                            self.display.GetInputPort("feasibility_scores"))
+            builder.Connect(self._completed.get_output_port(), self.display.GetInputPort("completed"))
+        self.diagram = builder.Build()
+        self.simulator = Simulator(self.diagram)
+        ApplySimulatorConfig(self.scenario.simulator_config, self.simulator)
+        self.context = self.simulator.get_mutable_context()
+        self.objects = SceneObjects(self.station, self.scenario)
+        self.plant = self.station.GetSubsystemByName("plant")
+        self.policies = GetChainPolicies(self.controller)
+        self.untrained = [task for task, policy in zip(self.tasks, self.policies, strict=True) if not policy.trained]
+        self.target, self.goal, self.completed = "", np.array([0, 0, 0, 1.0, 0, 0, 0]), 0
+        self._start_time = 0.0
+        if self.scenario.object_layout == "pile":
+            self.restore_pile(config.seed)
+        else:
+            self.objects.park(self.context)
+
+    def _feasibility_files(self, run_dir: Path, found: list) -> list:
+        if self.config.history is None:
+            return found
+        files = [None] + [run_dir / "feasibility" / f"{task}_h{self.config.history}.pt" for task in self.tasks[1:]]
+        missing = [str(path) for path in files[1:] if not path.is_file()]
+        if missing:
+            raise ChainRunError(f"history ablation H = {self.config.history}: missing {', '.join(missing)}")
+        return files
+
+    # ------------------------------------------------------------------------------------------- scene
+    @property
+    def plant_context(self):
+        return self.plant.GetMyMutableContextFromRoot(self.context)
+
+    def restore_pile(self, index: int) -> None:
+        """Restores cached pile ``index`` (modulo the number cached), every block frozen until targeted."""
+        piles = LoadPiles(ResolvePackageUrl(self.scenario.pile_file), self.objects.names)
+        self.objects.set_positions(self.context, piles[index % len(piles)],
+                                   frozen=np.ones(len(self.objects.names), dtype=bool))
+        self._used: set[str] = set()
+
+    def pick_block(self, block_type: int) -> str:
+        """The unused block of ``block_type`` to fetch next: the highest one whose centre is at least
+        ``BOX_MARGIN`` inside the box walls (else the highest one in the box)."""
+        if block_type not in BLOCK_SPECS:
+            raise ChainRunError(f"unknown block type {block_type}; valid types: {sorted(BLOCK_SPECS)}")
+        q = self.objects.positions(self.context)
+        names = [n for n in self.objects.names if n.startswith(f"block_{block_type}_") and n not in self._used]
+        if not names:
+            raise ChainRunError(f"no block of type {block_type} left in the box (all 9 used)")
+        p = np.array([q[self.objects.index(n), 4:] for n in names])
+        inside = np.all(np.abs(p[:, :2] - BOX_CENTER[:2]) <= BOX_INNER_HALF - BOX_MARGIN, axis=1)
+        order = np.lexsort((-p[:, 2], ~inside))  # Inside the margin first, then highest.
+        return names[int(order[0])]
+
+    def _reset_robot(self) -> None:
+        plant, context = self.plant, self.plant_context
+        for name, q in (("franka", self.scenario.robot.arm_home), ("allegro", ALLEGRO_OPEN_Q)):
+            instance = plant.GetModelInstanceByName(name)
+            plant.SetPositions(context, instance, np.asarray(q, dtype=float))
+            plant.SetVelocities(context, instance, np.zeros(plant.num_velocities(instance)))
+
+    def _start(self, name: str, goal: np.ndarray, reset_robot: bool) -> None:
+        from seqdex_drake.systems.chain_controller import SetChainTarget
+
+        if reset_robot:
+            self._reset_robot()
+        self.target, self.goal = name, np.asarray(goal, dtype=float)
+        body = self.objects.bodies[self.objects.index(name)]
+        SetChainTarget(self.controller, self.context, int(body.index()), goal=self.goal)
+        self.simulator.Initialize()  # Restarts the chain at stage 0 (switcher, policies, router, wrist IK).
+        self._start_time = self.context.get_time()
+
+    def start_block(self, block_type: int, goal: np.ndarray, reset_robot: bool = False) -> str:
+        """Targets the next block of ``block_type`` in the pile with goal pose ``goal`` ([xyz, wxyz]); blocks far
+        from it stay frozen. Returns the block's name."""
+        name = self.pick_block(block_type)
+        self._used.add(name)
+        frozen = self.objects.frozen_mask(self.context)
+        p = self.objects.positions(self.context)[:, 4:]
+        near = np.linalg.norm(p - p[self.objects.index(name)], axis=1) <= self.scenario.freeze.active_radius
+        in_box = np.all(np.abs(p[:, :2] - BOX_CENTER[:2]) <= BOX_INNER_HALF + 0.01, axis=1)
+        self.objects.set_frozen(self.context, frozen & ~(near & in_box))
+        self._start(name, goal, reset_robot)
+        return name
+
+    def start_tool(self, tool_index: int, rng: np.random.Generator) -> str:
+        """Lays tool ``tool_index`` (0 hammer: trained; 1 spatula, 2 spoon: unseen) on the table at a random yaw
+        (+-45 deg), the others parked; the goal is its start pose flipped 180 deg about its long axis, lifted.
+        The robot starts at home. Returns the tool's name."""
+        names = list(TOOL_SPECS)
+        if not 0 <= tool_index < len(names):
+            raise ChainRunError(f"unknown tool {tool_index}; valid: {dict(enumerate(names))}")
+        name = names[tool_index]
+        self.objects.park(self.context)
+        height = TOOL_SPECS[name].bounding_box[2]
+        X_WT = RigidTransform(RollPitchYaw(0.0, 0.0, rng.uniform(-np.pi / 4, np.pi / 4)),
+                              [*TOOL_XY, TABLE_TOP + height / 2 + 0.002])
+        self.objects.set_pose(self.context, name, X_WT, frozen=False)
+        X_goal = RigidTransform(X_WT.rotation() @ RotationMatrix.MakeYRotation(np.pi),
+                                X_WT.translation() + [0.0, 0.0, TOOL_GOAL_LIFT])
+        self._start(name, pose_vector(X_goal), reset_robot=True)
+        return name
+
+    def set_completed(self, count: int) -> None:
+        """The finished-object count shown by the display."""
+        self.completed = int(count)
+        source = self._completed.get_mutable_source_value(self._completed.GetMyMutableContextFromRoot(self.context))
+        source.SetFromVector([float(count)])
+
+    # ----------------------------------------------------------------------------------------- running
+    def object_pose(self) -> RigidTransform:
+        body = self.objects.bodies[self.objects.index(self.target)]
+        return self.plant.EvalBodyPoseInWorld(self.plant_context, body)
+
+    def errors(self) -> tuple[float, float]:
+        """Position (m) and rotation (rad) errors of the target to its goal (blocks: yaw-flip symmetric)."""
+        pose = pose_vector(self.object_pose())
+        rotation = quaternion_angle(pose[3:], self.goal[3:])
+        if self.config.family == "building_blocks":
+            rotation = min(rotation, quaternion_angle(pose[3:], quat_multiply(self.goal[3:], YAW_FLIP)))
+        return float(np.linalg.norm(pose[:3] - self.goal[:3])), float(rotation)
+
+    def is_success(self) -> bool:
+        position, rotation = self.errors()
+        if self.config.family == "building_blocks":
+            return position < BLOCK_TOLERANCE[0] and rotation < BLOCK_TOLERANCE[1]
+        return rotation < TOOL_TOLERANCE
+
+    def chain_output(self, name: str) -> np.ndarray:
+        return self.controller.GetOutputPort(name).Eval(self.controller.GetMyContextFromRoot(self.context))
+
+    def run(self, time_limit: float, on_tick: Callable[["ChainRunner"], bool] | None = None,
+            stop_on_success: bool = True) -> Outcome:
+        """Steps control periods until success (if ``stop_on_success``), ``time_limit`` simulated seconds from
+        the episode's start, or ``on_tick`` returning False (called after every step)."""
+        period = self.scenario.control_period
+        while self.context.get_time() - self._start_time < time_limit - 1e-9:
+            self.simulator.AdvanceTo(self.context.get_time() + period)
+            self.objects.update(self.context)
+            if on_tick is not None and on_tick(self) is False:
+                break
+            if stop_on_success and self.is_success():
+                break
+        position, rotation = self.errors()
+        return Outcome(success=self.is_success(), time=self.context.get_time() - self._start_time,
+                       last_stage=int(self.chain_output("active_stage")[0]),
+                       switches=int(self.chain_output("switches_used")[0]), position_error=position,
+                       rotation_error=rotation)
+
+    def episode_limit(self) -> float:
+        """A time limit covering every stage's budget once per allowed switch, plus 3 s of approach."""
+        switcher = self.controller.GetSubsystemByName("switcher")
+        return float(np.sum(switcher.stage_budgets)) * (1 + self.config.max_switches) * \
+            self.scenario.control_period + 3.0
