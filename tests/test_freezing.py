@@ -75,3 +75,30 @@ def test_touching_wakes_a_block_beyond_the_wake_radius():
     X_WB = RigidTransform(tip + [0.06 + 0.010, 0.0, -0.0575 / 2])
     harness.objects.set_pose(harness.context, "block_5", X_WB, frozen=True)
     assert harness.objects.update(harness.context) == ["block_5"]  # Only the contact can have woken it.
+
+
+def _candidates(harness, context=None):
+    scene_graph = harness.objects.scene_graph
+    context = harness.context if context is None else context
+    query = scene_graph.get_query_output_port().Eval(scene_graph.GetMyContextFromRoot(context))
+    return {tuple(sorted((a.get_value(), b.get_value()))) for a, b in query.inspector().GetCollisionCandidates()}
+
+
+def test_collision_filters_follow_the_frozen_set():
+    """After any sequence of freezes, wakes and restores, the collision candidates are the model's own minus
+    exactly the pairs within the static geometries and the frozen objects' geometries."""
+    harness = _grasp_harness()
+    objects = harness.objects
+    model = _candidates(harness, harness.diagram.CreateDefaultContext())
+    rng = np.random.default_rng(0)
+    masks = [rng.random(len(objects.names)) < p for p in (0.5, 0.5, 0.9, 0.1, 0.0, 1.0, 0.5)]
+    for mask in [*masks, masks[0]]:
+        objects.set_frozen(harness.context, mask)
+        filtered = {g.get_value() for g in objects._static + objects._object_geometries(np.flatnonzero(mask))}
+        expected = {pair for pair in model if not (pair[0] in filtered and pair[1] in filtered)}
+        assert _candidates(harness) == expected
+    state = objects.get_state(harness.context)
+    objects.set_frozen(harness.context, ~state["frozen"])
+    objects.set_state(harness.context, state)
+    objects.redeclare_filters(harness.context)  # Idempotent.
+    assert _candidates(harness) == expected

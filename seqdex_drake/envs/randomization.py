@@ -15,7 +15,7 @@ object scale       ``SceneGraph.ChangeShape(sg_context, ...)`` on every geometry
                    illustration, perception: the label camera sees it), poses scaled about the body origin; the
                    centre of mass scales by s and the unit inertia by s^2 (``SetSpatialInertiaInBodyFrame``);
                    the mass is the mass item's. ChangeShape drops the context's collision filters of the geometry,
-                   so the freezer's filters are re-declared (``SceneObjects.get_state``/``set_state``).
+                   so the freezer's filters are re-declared (``SceneObjects.redeclare_filters``).
 PD stiffness and   ``JointActuator.set_controller_gains(PdControllerGains)`` (kp, kd) and
 damping            ``Joint.SetDampingVector(plant_context, ...)`` (viscous damping, same factor as kd).
 joint limits       ``Joint.set_position_limits``.
@@ -302,7 +302,8 @@ class DomainRandomizer:
             G0 = M0.get_unit_inertia()
             G = UnitInertia(*(G0.get_moments() * s**2), *(G0.get_products() * s**2))
             body.SetSpatialInertiaInBodyFrame(plant_context, SpatialInertia(M0.get_mass(), M0.get_com() * s, G))
-        objects.set_state(root, state)  # ChangeShape dropped the geometries' freeze filters: declare them again.
+        objects.set_state(root, state)
+        objects.redeclare_filters(root)  # ChangeShape dropped the geometries' freeze filters: declare them again.
 
     def sync_masses(self) -> None:
         """Writes the randomized masses back where ``SceneObjects.set_frozen`` restored nominal ones."""
