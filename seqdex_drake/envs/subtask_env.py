@@ -75,6 +75,13 @@ class SubtaskEnv(gym.Env):
         self.station, self.assembler = station, assembler
         self.simulator = Simulator(self.diagram)
         self.context = self.simulator.get_mutable_context()
+        # Subsystem contexts of the (fixed) root context, looked up once: the per-step code writes and reads them.
+        self._plant_context = self.plant.GetMyMutableContextFromRoot(self.context)
+        self._station_context = station.GetMyContextFromRoot(self.context)
+        self._assembler_context = assembler.GetMyMutableContextFromRoot(self.context)
+        self._source_contexts = [source.GetMyMutableContextFromRoot(self.context)
+                                 for source in (self._arm_source, self._hand_source, self._action_source)]
+        self._hand_torque_port = station.GetOutputPort("allegro.net_actuation")
         self.objects = SceneObjects(station, self.scenario)
         self._controller_plant = MakeControllerPlant(self.scenario)
         self.ik = PalmIK(self._controller_plant, p_PalmC_Palm=p_PalmHc_Palm)
@@ -94,7 +101,7 @@ class SubtaskEnv(gym.Env):
     # ------------------------------------------------------------------------------------------- state
     @property
     def plant_context(self):
-        return self.plant.GetMyMutableContextFromRoot(self.context)
+        return self._plant_context
 
     def arm_q(self) -> np.ndarray:
         return self.plant.GetPositions(self.plant_context, self.arm)
@@ -118,7 +125,7 @@ class SubtaskEnv(gym.Env):
                                            axis=1)))
 
     def hand_torque(self) -> np.ndarray:
-        return self.station.GetOutputPort("allegro.net_actuation").Eval(self.station.GetMyContextFromRoot(self.context))
+        return self._hand_torque_port.Eval(self._station_context)
 
     def set_robot(self, arm_q: np.ndarray, hand_q: np.ndarray) -> None:
         """Places the robot at rest at these positions and holds them as PD targets."""
@@ -144,7 +151,7 @@ class SubtaskEnv(gym.Env):
             self.goal = np.asarray(goal, dtype=float)
         label = int(self.object_body().index())  # MultibodyPlant labels each body's geometry by body index.
         target = ObservationTarget(object_body=label, goal=self.goal, label=label)
-        self.assembler.set_target(self.assembler.GetMyMutableContextFromRoot(self.context), target)
+        self.assembler.set_target(self._assembler_context, target)
 
     def get_state(self) -> EnvState:
         return EnvState(self.plant.GetPositions(self.plant_context).copy(),
@@ -162,16 +169,16 @@ class SubtaskEnv(gym.Env):
         self._set_sources(np.array(state.arm_target), self._hand_target, np.array(state.previous_action))
 
     def _set_sources(self, arm_q, hand_q, previous_action) -> None:
-        for source, value in ((self._arm_source, np.r_[arm_q, np.zeros(7)]),
-                              (self._hand_source, np.r_[hand_q, np.zeros(16)]),
-                              (self._action_source, previous_action)):
-            source.get_mutable_source_value(source.GetMyMutableContextFromRoot(self.context)).SetFromVector(value)
+        for source, context, value in zip((self._arm_source, self._hand_source, self._action_source),
+                                          self._source_contexts, (np.concatenate([arm_q, np.zeros(7)]),
+                                                                  np.concatenate([hand_q, np.zeros(16)]),
+                                                                  previous_action), strict=True):
+            source.get_mutable_source_value(context).SetFromVector(value)
         self._arm_target = np.array(arm_q, dtype=float)
         self._previous_action = np.array(previous_action, dtype=float)
 
     def observation(self) -> np.ndarray:
-        return self.assembler.get_output_port().Eval(self.assembler.GetMyContextFromRoot(self.context)).astype(
-            np.float32)
+        return self.assembler.get_output_port().Eval(self._assembler_context).astype(np.float32)
 
     # ------------------------------------------------------------------------------------------ gym API
     def reset(self, *, seed=None, options=None):

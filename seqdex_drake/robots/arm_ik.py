@@ -36,11 +36,20 @@ class PalmIK:
         self.damping = damping
         self.orientation_weight = orientation_weight
         self.p_PalmC_Palm = np.asarray(p_PalmC_Palm, dtype=float)
+        self._X_PalmC = RigidTransform(self.p_PalmC_Palm)
+        self._last = (None, None)  # (q_arm, X_WC) of the last palm_pose call: the env asks twice per tick.
 
     def palm_pose(self, q_arm: np.ndarray) -> RigidTransform:
-        """X_WC: the controlled point with the palm's orientation, in the world, for arm positions ``q_arm``."""
+        """X_WC: the controlled point with the palm's orientation, in the world, for arm positions ``q_arm``.
+
+        Leaves ``self.context`` at ``q_arm`` (``step`` evaluates the Jacobian there)."""
+        q_last, X_last = self._last
+        if q_last is not None and np.array_equal(q_arm, q_last):
+            return X_last
         self.plant.SetPositions(self.context, q_arm)
-        return self.palm.CalcPoseInWorld(self.context) @ RigidTransform(self.p_PalmC_Palm)
+        X_WC = self.palm.CalcPoseInWorld(self.context) @ self._X_PalmC
+        self._last = (np.array(q_arm, dtype=float), X_WC)
+        return X_WC
 
     def step(self, q_arm: np.ndarray, p_WC_target: np.ndarray, R_WP_target: RotationMatrix,
              max_step: float = 0.05) -> np.ndarray:

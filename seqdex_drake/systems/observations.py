@@ -49,10 +49,17 @@ class ObservationTarget:
     """Render label of the target object in the label image (Search)."""
 
 
+def cross3(a, b) -> np.ndarray:
+    """The cross product of two 3-vectors; the same arithmetic as ``np.cross``, without its per-call overhead."""
+    a0, a1, a2 = a
+    b0, b1, b2 = b
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+
+
 def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product of quaternions [w, x, y, z]."""
     w0, v0, w1, v1 = a[0], a[1:], b[0], b[1:]
-    return np.r_[w0 * w1 - v0 @ v1, w0 * v1 + w1 * v0 + np.cross(v0, v1)]
+    return np.concatenate([[w0 * w1 - v0 @ v1], w0 * v1 + w1 * v0 + cross3(v0, v1)])
 
 
 def quat_conjugate(q: np.ndarray) -> np.ndarray:
@@ -61,8 +68,16 @@ def quat_conjugate(q: np.ndarray) -> np.ndarray:
 
 def pose_vector(X) -> np.ndarray:
     """[x, y, z, qw, qx, qy, qz] of a RigidTransform, with qw >= 0."""
+    out = np.empty(7)
+    _write_pose(out, 0, X)
+    return out
+
+
+def _write_pose(out: np.ndarray, start: int, X) -> None:
+    """Writes :func:`pose_vector` of ``X`` into ``out[start:start + 7]``."""
     q = X.rotation().ToQuaternion().wxyz()
-    return np.r_[X.translation(), q if q[0] >= 0 else -q]
+    out[start:start + 3] = X.translation()
+    out[start + 3:start + 7] = q if q[0] >= 0 else -q
 
 
 class ObservationAssembler(LeafSystem):
@@ -84,6 +99,7 @@ class ObservationAssembler(LeafSystem):
         self._tips = [plant.GetFrameByName(name, hand) for name in FINGERTIP_FRAMES]
         self._tip_bodies = [int(f.body().index()) for f in self._tips]
         self._X_BF = [f.GetFixedPoseInBodyFrame() for f in self._tips]
+        self._p_BF = [X.translation() for X in self._X_BF]
         self._palm = int(plant.GetBodyByName(PALM_BODY, hand).index())
         self._goal, self._pixels = goal, pixels
         self.size = BASE_SIZE + (GOAL_SIZE if goal else 0) + (1 if pixels else 0)
@@ -106,14 +122,16 @@ class ObservationAssembler(LeafSystem):
     def target(self, context) -> ObservationTarget:
         return context.get_abstract_parameter(self._target_index).get_value()
 
-    def _body_state(self, poses, velocities, body: int, X_BF=None) -> np.ndarray:
-        X_WB = poses[body]
-        V = velocities[body]
+    def _write_body_state(self, out: np.ndarray, start: int, X_WB, V, p_BF=None, X_BF=None) -> None:
+        """Writes the 13-vector (pose, linear, angular velocity) of body B, or of frame F fixed on it, at ``start``."""
+        w_WB = V.rotational()
         if X_BF is None:
-            return np.r_[pose_vector(X_WB), V.translational(), V.rotational()]
-        X_WF = X_WB @ X_BF
-        v_WF = V.translational() + np.cross(V.rotational(), X_WB.rotation() @ X_BF.translation())
-        return np.r_[pose_vector(X_WF), v_WF, V.rotational()]
+            _write_pose(out, start, X_WB)
+            out[start + 7:start + 10] = V.translational()
+        else:
+            _write_pose(out, start, X_WB.multiply(X_BF))
+            out[start + 7:start + 10] = V.translational() + cross3(w_WB, X_WB.rotation().multiply(p_BF))
+        out[start + 10:start + 13] = w_WB
 
     def _calc(self, context, output: BasicVector) -> None:
         target = self.target(context)
@@ -121,18 +139,21 @@ class ObservationAssembler(LeafSystem):
             raise RuntimeError("ObservationAssembler: no target object set; call set_target() at reset")
         arm = self.get_input_port(0).Eval(context)
         hand = self.get_input_port(1).Eval(context)
-        tactile = self.get_input_port(2).Eval(context)
         poses = self.get_input_port(3).Eval(context)
         velocities = self.get_input_port(4).Eval(context)
-        previous_action = self.get_input_port(5).Eval(context)
-        tips = [self._body_state(poses, velocities, b, X) for b, X in zip(self._tip_bodies, self._X_BF, strict=True)]
-        obj = self._body_state(poses, velocities, target.object_body)
-        parts = [arm[:7], hand[:16], arm[7:], hand[16:], *tips, self._body_state(poses, velocities, self._palm),
-                 obj, previous_action, tactile]
+        out = np.empty(self.size)
+        out[0:7], out[7:23], out[23:30], out[30:46] = arm[:7], hand[:16], arm[7:], hand[16:]
+        for k, (body, p_BF, X_BF) in enumerate(zip(self._tip_bodies, self._p_BF, self._X_BF, strict=True)):
+            self._write_body_state(out, 46 + 13 * k, poses[body], velocities[body], p_BF, X_BF)
+        self._write_body_state(out, 98, poses[self._palm], velocities[self._palm])
+        self._write_body_state(out, 111, poses[target.object_body], velocities[target.object_body])
+        out[124:143] = self.get_input_port(5).Eval(context)
+        out[143:159] = self.get_input_port(2).Eval(context)
         if self._goal:
             goal = np.asarray(target.goal, dtype=float)
-            parts += [goal, goal[:3] - obj[:3], quat_multiply(goal[3:], quat_conjugate(obj[3:7]))]
+            out[159:166], out[166:169] = goal, goal[:3] - out[111:114]
+            out[169:173] = quat_multiply(goal[3:], quat_conjugate(out[114:118]))
         if self._pixels:
             image = self.GetInputPort("label_image").Eval(context)
-            parts.append([np.count_nonzero(image.data == target.label)])
-        output.SetFromVector(np.concatenate([np.ravel(p) for p in parts]))
+            out[BASE_SIZE] = np.count_nonzero(image.data == target.label)
+        output.SetFromVector(out)
