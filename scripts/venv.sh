@@ -28,7 +28,7 @@ PY
   if ! "$venv/bin/python" -c "import torch" >/dev/null 2>&1; then
     "$venv/bin/python" -m pip install --quiet "torch==2.13.0"
   fi
-  "$venv/bin/python" -m pip install --quiet -e "$repo[dev]"
+  "$venv/bin/python" -m pip install --quiet -e "$repo[dev,distributed]"
   echo "$want" > "$stamp"
 fi
 cd "$repo"

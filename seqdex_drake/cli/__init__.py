@@ -12,20 +12,29 @@ Exit codes: 0 success; 2 bad input (unknown task, missing or mismatched file, wr
 import dataclasses
 import json
 
-from seqdex_drake.chaining.spec import ObservationSpec
+from seqdex_drake.tasks.registry import observation_spec  # noqa: F401 (re-exported for the subcommands)
 
-#: The sub-task that follows each one in its chain (Building Blocks: search -> orient -> grasp -> insert;
-#: Tool Positioning: tool_grasp -> tool_reorient). The last task of a chain has no entry.
-NEXT_TASK = {"search": "orient", "orient": "grasp", "grasp": "insert", "tool_grasp": "tool_reorient"}
+
+
+def _chain_links() -> dict[str, str]:
+    from seqdex_drake.chaining.chain import ChainNames, LoadChain
+
+    links = {}
+    for name in ChainNames():
+        stages = LoadChain(name).stages
+        links.update(zip(stages, stages[1:]))
+    return links
+
+
+#: The sub-task that follows each one in its chain of ``diagrams/chains.yaml`` (Building Blocks: search ->
+#: orient -> grasp -> insert; Tool Positioning: tool_grasp -> tool_reorient; the hand-over chain: reach ->
+#: lower). The last task of a chain has no entry.
+NEXT_TASK = _chain_links()
 #: The sub-task that precedes each one (the inverse of :data:`NEXT_TASK`).
 PREVIOUS_TASK = {target: source for source, target in NEXT_TASK.items()}
 
 #: Episode length of every sub-task under ``--test`` (a few seconds of simulation per run).
 TEST_EPISODE_LENGTH = 6
-
-#: The observation layout of the paper's tables (``seqdex_drake.systems.observations``).
-_BASE_LAYOUT = ("joint_q(23) joint_dq(23) fingertips(4x13) palm(13) object(13) previous_action(19) "
-                "motor_torque(16)")
 
 
 class CliError(Exception):
@@ -56,12 +65,3 @@ def _plain(value):
     if hasattr(value, "tolist"):
         return value.tolist()
     raise TypeError(f"cannot write {type(value).__name__} to JSON")
-
-
-def observation_spec(task: str, dim: int) -> ObservationSpec:
-    """The spec of sub-task ``task``'s observations of size ``dim`` (goal and pixel parts as the table has)."""
-    from seqdex_drake.tasks.registry import REGISTRY
-
-    task_class = REGISTRY[task][1]
-    extras = (" goal(14)" if task_class.goal else "") + (" target_pixels(1)" if task_class.pixels else "")
-    return ObservationSpec(dim, f"{task}: {_BASE_LAYOUT}{extras}")

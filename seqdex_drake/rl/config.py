@@ -99,13 +99,14 @@ class PPOConfig:
         """The paper's PPO hyperparameters for one sub-task (appendix tables), with optional overrides.
 
         Args:
-            name: ``search``, ``orient``, ``grasp``, ``insert``, ``tool_grasp`` or ``tool_reorient``.
+            name: ``search``, ``orient``, ``grasp``, ``insert``, ``tool_grasp``, ``tool_reorient`` (the paper's
+                tables) or ``reach``, ``lower`` (the cheap hand-over chain).
             **overrides: any field of this dataclass, e.g. ``num_envs=8``.
         """
-        if name not in PAPER_TASK_HYPERPARAMETERS:
-            raise ValueError(f"no paper PPO hyperparameters for sub-task {name!r}; "
-                             f"known: {sorted(PAPER_TASK_HYPERPARAMETERS)}")
-        return dataclasses.replace(cls(), **{**PAPER_TASK_HYPERPARAMETERS[name], **overrides})
+        presets = {**PAPER_TASK_HYPERPARAMETERS, **HANDOVER_TASK_HYPERPARAMETERS}
+        if name not in presets:
+            raise ValueError(f"no PPO hyperparameters for sub-task {name!r}; known: {sorted(presets)}")
+        return dataclasses.replace(cls(), **{**presets[name], **overrides})
 
     def to_dict(self) -> dict[str, Any]:
         """Plain-data form (lists for tuples), as stored in checkpoints."""
@@ -142,4 +143,12 @@ PAPER_TASK_HYPERPARAMETERS: dict[str, dict[str, Any]] = {
     "insert": dict(num_minibatches=8, num_epochs=2, horizon=8, gamma=0.9),
     "tool_grasp": dict(num_minibatches=4, num_epochs=5, horizon=8, gamma=0.96),
     "tool_reorient": dict(num_minibatches=4, num_epochs=10, horizon=20, gamma=0.96),
+}
+
+#: The cheap hand-over chain (``tasks/handover_common.py``): not in the paper; small networks and long rollouts
+#: so that each stage learns in a few thousand steps on two CPU workers.
+HANDOVER_TASK_HYPERPARAMETERS: dict[str, dict[str, Any]] = {
+    name: dict(actor_hidden_sizes=(128, 128), critic_hidden_sizes=(128, 128), num_envs=2, horizon=120,
+               num_minibatches=4, num_epochs=5, gamma=0.96, learning_rate=1e-3, checkpoint_every=10)
+    for name in ("reach", "lower")
 }

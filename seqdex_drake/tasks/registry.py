@@ -1,6 +1,6 @@
 """The sub-task registry: names to modules; creation, scripts and tests are driven from here."""
 
-from seqdex_drake.tasks import grasp, insert, orient, search, tool_grasp, tool_reorient
+from seqdex_drake.tasks import grasp, insert, lower, orient, reach, search, tool_grasp, tool_reorient
 from seqdex_drake.tasks.base import Task, TaskConfig
 
 #: name -> (default_config, Task class)
@@ -11,6 +11,9 @@ REGISTRY = {
     "insert": (insert.default_config, insert.InsertTask),
     "tool_grasp": (tool_grasp.default_config, tool_grasp.ToolGraspTask),
     "tool_reorient": (tool_reorient.default_config, tool_reorient.ToolReorientTask),
+    # The hand-over chain: a cheap two-stage chain for method comparisons (tasks/handover_common.py).
+    "reach": (reach.default_config, reach.ReachTask),
+    "lower": (lower.default_config, lower.LowerTask),
 }
 
 
@@ -36,3 +39,18 @@ def make_env(name: str, config: TaskConfig | None = None, meshcat=None):
     from seqdex_drake.envs.subtask_env import SubtaskEnv
 
     return SubtaskEnv(make_task(name, config), meshcat=meshcat)
+
+
+#: The observation layout of the paper's tables (``seqdex_drake.systems.observations``), for observation specs.
+_BASE_LAYOUT = ("joint_q(23) joint_dq(23) fingertips(4x13) palm(13) object(13) previous_action(19) "
+                "motor_torque(16)")
+
+
+def observation_spec(name: str, dim: int):
+    """The :class:`~seqdex_drake.chaining.spec.ObservationSpec` of sub-task ``name``'s observations of size
+    ``dim`` (goal and pixel parts as the paper's table has), recorded in buffers, F files and checkpoints."""
+    from seqdex_drake.chaining.spec import ObservationSpec
+
+    task_class = REGISTRY[name][1]
+    extras = (" goal(14)" if task_class.goal else "") + (" target_pixels(1)" if task_class.pixels else "")
+    return ObservationSpec(dim, f"{name}: {_BASE_LAYOUT}{extras}")

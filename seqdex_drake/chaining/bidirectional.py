@@ -1,0 +1,302 @@
+"""Running a pipeline: forward initialization, backward fine-tuning (paper Algorithm 1), the baselines and the
+final evaluation, phase by phase in a :class:`~seqdex_drake.chaining.pipeline.RunDirectory` so that an
+interrupted run resumes where it stopped (a PPO phase continues from its own ``last.pt``).
+
+Nothing here knows the sub-tasks: stages come from the chain spec and are built through the task registry.
+"""
+
+import dataclasses
+import io
+import time
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from seqdex_drake.atomic import atomic_write
+from seqdex_drake.chaining.chain import ChainSpec
+from seqdex_drake.chaining.feasibility import feasibility_threshold, pad_history, train_feasibility
+from seqdex_drake.chaining.feasibility_io import load_feasibility, save_feasibility
+from seqdex_drake.chaining.pipeline import CHAINED_METHODS, PipelineConfig, RunDirectory, pipeline_budget
+from seqdex_drake.chaining.rollouts import collect_transitions, deterministic_policy, evaluate_chain, run_prefix
+from seqdex_drake.chaining.terminal_buffer import TerminalBuffer
+from seqdex_drake.chaining.tstar import TStarConfig, TStarDiscriminator
+from seqdex_drake.chaining.wrappers import InitialStateVectorEnv, TransitionBonusVectorEnv
+from seqdex_drake.rl.config import PPOConfig
+from seqdex_drake.rl.ppo import PPO
+from seqdex_drake.tasks.registry import default_config, make_env, observation_spec
+
+#: Evaluation episodes are seeded from here on (training resets use the run seed and its step counts).
+EVAL_SEED = 100_000
+
+#: In-process envs, built once per (task, config, slot) and reused by every phase and pipeline of this process
+#: (building a station diagram costs seconds; a reset with a seed makes a reused env as good as new).
+_ENV_POOL: dict[tuple, object] = {}
+
+
+def pooled_env(task: str, config, slot: int):
+    """The process's env number ``slot`` for ``task`` with ``config`` (built on first use)."""
+    key = (task, repr(config), slot)
+    if key not in _ENV_POOL:
+        _ENV_POOL[key] = make_env(task, config)
+    return _ENV_POOL[key]
+
+
+class Pipeline:
+    """One run of ``config.method`` on ``chain`` in ``run_dir``.
+
+    Args:
+        chain: the chain (its stages must share one station scene).
+        config: budgets, weights and the method.
+        run_dir: the run directory (see :mod:`seqdex_drake.chaining.pipeline`).
+        resume: continue a run in ``run_dir`` instead of starting one.
+        progress: show PPO progress bars.
+        log: where one-line progress messages go.
+    """
+
+    def __init__(self, chain: ChainSpec, config: PipelineConfig, run_dir, resume: bool = False,
+                 progress: bool = False, log: Callable[[str], None] = print):
+        self.chain, self.config, self.progress, self.log = chain, config, progress, log
+        self.stages = chain.stages
+        self.task_configs = [self._task_config(task) for task in self.stages]
+        self.run = RunDirectory(run_dir, config, chain, resume)
+        self._envs = None
+
+    # -------------------------------------------------------------------------------------------- pieces
+    def _task_config(self, task: str):
+        config = default_config(task)
+        if self.config.episode_length_cap > 0:
+            config = dataclasses.replace(config, episode_length=min(config.episode_length,
+                                                                    self.config.episode_length_cap))
+        return config
+
+    def _ppo_config(self, task: str) -> PPOConfig:
+        overrides = {"seed": self.config.seed, "num_envs": self.config.num_envs}
+        if self.config.hidden_sizes:
+            overrides.update(actor_hidden_sizes=self.config.hidden_sizes, critic_hidden_sizes=self.config.hidden_sizes)
+        if self.config.episode_length_cap > 0:  # Tiny runs: a few short rollouts per update.
+            overrides.update(horizon=8, num_minibatches=2)
+        return PPOConfig.for_task(task, **overrides)
+
+    def stage_envs(self) -> list:
+        """One in-process env per stage (for rollouts and evaluation), built once."""
+        if self._envs is None:
+            self._envs = [pooled_env(task, config, 0) for task, config in zip(self.stages, self.task_configs,
+                                                                              strict=True)]
+            sizes = {env.plant.num_positions() for env in self._envs}
+            if len(sizes) != 1:
+                raise ValueError(f"chain {self.chain.name!r}: its stages run on different station scenes "
+                                 f"({sorted(sizes)} plant positions), so states cannot be handed over in one "
+                                 f"simulation; give the stages one shared scenario")
+        return self._envs
+
+    def _vector_env(self, index: int, seed: int):
+        task, config = self.stages[index], self.task_configs[index]
+        if self.config.backend == "process":
+            from seqdex_drake.envs.vector import ProcessVectorEnv
+
+            return ProcessVectorEnv(task, self.config.num_envs, seed=seed, config=config)
+        from seqdex_drake.envs.serial import SerialVectorEnv
+
+        return SerialVectorEnv([lambda slot=slot: pooled_env(task, config, 1 + slot)
+                                for slot in range(self.config.num_envs)], seed=seed)
+
+    def policies(self, upto: int | None = None) -> list:
+        """The chain's current policies of stages ``0 .. upto`` (default: all), as deterministic callables."""
+        stages = self.stages if upto is None else self.stages[:upto + 1]
+        return [deterministic_policy(PPO.resume(self.run.policy(task))) for task in stages]
+
+    # ------------------------------------------------------------------------------------------- phases
+    def _timed(self, phase: str, work: Callable[[], dict]) -> dict:
+        """Runs ``work`` unless ``phase`` is done; records its outcome with its wall-clock time."""
+        outcome = self.run.done(phase)
+        if outcome is not None:
+            return outcome
+        start = time.perf_counter()
+        outcome = work()
+        outcome["seconds"] = time.perf_counter() - start
+        self.run.finish(phase, outcome)
+        self.log(f"[{self.config.method}] {phase}: " + ", ".join(
+            f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in outcome.items()))
+        return outcome
+
+    def train_stage(self, phase: str, index: int, steps: int, start_from=None, buffer_path=None,
+                    bonus=None) -> dict:
+        """PPO on stage ``index`` for ``steps`` env steps (from scratch, or continuing ``start_from``), its
+        episodes starting from ``buffer_path``'s states if given, its reward shaped by ``bonus`` if given; the
+        result becomes the chain's policy for that stage."""
+        def work():
+            from seqdex_drake.envs.subtask_env import EnvState
+
+            task, directory = self.stages[index], self.run.phase_dir(phase)
+            if (directory / "last.pt").is_file():  # An interrupted phase: continue it.
+                ppo = PPO.resume(directory / "last.pt")
+                target = self.run.record.setdefault("targets", {})[phase]
+            else:
+                ppo = PPO.resume(start_from) if start_from is not None else None
+                target = (0 if ppo is None else ppo.global_step) + steps
+                self.run.record.setdefault("targets", {})[phase] = target
+            seed = self.config.seed + 1000 * index
+            env = self._vector_env(index, seed)
+            try:
+                if buffer_path is not None:
+                    buffer = TerminalBuffer.load(buffer_path, expected_task=task)
+                    env = InitialStateVectorEnv(env, buffer, seed, EnvState,
+                                                successful_only=not self.config.handoff_failures)
+                if bonus is not None:
+                    env = TransitionBonusVectorEnv(env, bonus, self.config.lambda1, self.config.lambda2,
+                                                   history=max(self.config.history, 1),
+                                                   window=self.config.bonus_window,
+                                                   episode_length=self.task_configs[index].episode_length)
+                if ppo is None:
+                    ppo = PPO.for_env(self._ppo_config(task), env)
+                metrics = ppo.train(env, directory, total_steps=target, progress=self.progress)
+            finally:
+                env.close()
+            self.run.publish_policy(task, directory / "last.pt")
+            return {"steps": steps, "success_rate": float(metrics.get("charts/success_rate", np.nan))}
+
+        return self._timed(phase, work)
+
+    def collect_buffer(self, phase: str, index: int) -> dict:
+        """Forward initialization: pi_index's successful terminal states (chain-prefix rollouts) -> rho_{index+1}."""
+        def work():
+            envs, policies = self.stage_envs(), self.policies(index)
+            source, target = self.stages[index], self.stages[index + 1]
+            dim = envs[index].observation_space.shape[0]
+            buffer = TerminalBuffer(source, target, self.task_configs[index].scenario, observation_spec(source, dim),
+                                    max(self.config.history, 1))
+            env_steps = 0
+            for episode in range(self.config.transition_episodes):
+                result = run_prefix(envs, policies, index, self.config.seed + 7919 * (index + 1) + episode)
+                buffer.append(result.state, pad_history(result.observations, buffer.history), result.episode_return,
+                              result.success)
+                env_steps += len(result.observations) - 1
+            if not buffer.successes.any() and not self.config.handoff_failures:
+                raise RuntimeError(f"no {source} rollout succeeded in {self.config.transition_episodes} episodes, "
+                                   f"so {target} has no initial states; give {source} a larger --stage-steps")
+            buffer.save(self.run.buffer(source, target))
+            return {"episodes": self.config.transition_episodes, "success_rate": float(buffer.successes.mean()),
+                    "last_stage_steps": env_steps}
+
+        return self._timed(phase, work)
+
+    def transition_bonus(self, phase: str, index: int):
+        """The bonus that fine-tunes pi_{index-1} toward states stage ``index`` succeeds from (None: Policy-Seq)."""
+        method = self.config.method
+        if method == "policy_seq":
+            return None
+        envs, policies = self.stage_envs(), self.policies(index)
+        source, target = self.stages[index - 1], self.stages[index]
+        source_dim = envs[index - 1].observation_space.shape[0]
+
+        def work():
+            data = collect_transitions(envs, policies, index, self.config.transition_episodes,
+                                       self.config.seed + 104729 * index)
+            outcome = {"episodes": len(data.returns), "target_success_rate": float(data.successes.mean()),
+                       "mean_return": float(data.returns.mean())}
+            if method in ("seqdex", "seqdex_no_temporal"):
+                config = self.config.feasibility_config()
+                model, metrics = train_feasibility(data.histories, data.returns, config)
+                if data.successes.any():
+                    threshold = feasibility_threshold(data.returns, data.successes, self.config.threshold_quantile)
+                else:  # Without a success h is undefined; the best return seen keeps c > 1 rare. Said loudly.
+                    threshold = float(max(data.returns.max(), 1e-6))
+                    self.log(f"[{method}] warning: no successful {target} execution; h set to the best return "
+                             f"{threshold:.3g}")
+                save_feasibility(self.run.feasibility(target), model, config, threshold,
+                                 observation_spec(source, source_dim), source_task=source, target_task=target,
+                                 metrics=metrics)
+                outcome.update(threshold=threshold, val_r2=float(metrics.get("val_r2", np.nan)))
+            elif method == "tstar":
+                discriminator = TStarDiscriminator(source_dim, TStarConfig(seed=self.config.seed))
+                last = torch.as_tensor(data.histories[:, -1], dtype=torch.float32)
+                positive = last[torch.as_tensor(data.successes)]
+                if len(positive) == 0 and self.config.handoff_failures:
+                    positive = last
+                if len(positive) == 0:
+                    raise RuntimeError(f"T-STAR: no {target} execution succeeded from {source}'s terminal states, "
+                                       f"so its discriminator has no positive examples; train {target} longer")
+                discriminator.fit_normalizer(last)
+                for _ in range(self.config.tstar_steps):
+                    losses = discriminator.train_step(positive, last)
+                payload = io.BytesIO()
+                torch.save(discriminator.training_state(), payload)
+                atomic_write(self.run.tstar(target), lambda file: file.write(payload.getvalue()))
+                outcome.update(accuracy=discriminator.accuracy(positive, last), loss=losses["loss"])
+            return outcome
+
+        self._timed(phase, work)
+        if method in ("seqdex", "seqdex_no_temporal"):
+            model = load_feasibility(self.run.feasibility(target)).model
+            return model.predict
+        if method == "tstar":
+            state = torch.load(self.run.tstar(target), weights_only=False)
+            discriminator = TStarDiscriminator.from_training_state(state)
+            return lambda history: float(discriminator.transition_reward(history[-1:])[0])
+        # V-Chain: the next stage's PPO critic on the hand-over observation.
+        critic = PPO.resume(self.run.policy(target)).model
+        target_dim = envs[index].observation_space.shape[0]
+        if target_dim != source_dim:
+            raise ValueError(f"V-Chain scores {source}'s terminal observation with {target}'s critic, but they have "
+                             f"different layouts ({source_dim} vs {target_dim} dims)")
+        critic.eval()
+
+        def value(history):
+            with torch.no_grad():
+                return float(critic.value(torch.as_tensor(history[-1:], dtype=torch.float32))[0])
+
+        return value
+
+    # -------------------------------------------------------------------------------------------- runs
+    def run_chained(self) -> dict:
+        """Forward initialization, then ``iterations`` backward passes (Policy-Seq: fine-tuning without bonus)."""
+        config, stages = self.config, self.stages
+        for i, task in enumerate(stages):
+            buffer = self.run.buffer(stages[i - 1], task) if i > 0 else None
+            self.train_stage(f"forward_{i}_{task}", i, config.stage_steps, buffer_path=buffer)
+            if i + 1 < len(stages):
+                self.collect_buffer(f"buffer_0_{task}", i)
+        for m in range(1, config.iterations + 1):
+            for i in range(len(stages) - 1, 0, -1):
+                bonus = self.transition_bonus(f"bonus_{m}_{stages[i]}", i)
+                previous = stages[i - 1]
+                buffer = self.run.buffer(stages[i - 2], previous) if i > 1 else None
+                self.train_stage(f"finetune_{m}_{previous}", i - 1, config.finetune_steps,
+                                 start_from=self.run.policy(previous), buffer_path=buffer, bonus=bonus)
+            for i in range(len(stages) - 1):  # Refresh forward initialization for the next pass.
+                if m < config.iterations:
+                    self.collect_buffer(f"buffer_{m}_{stages[i]}", i)
+        return self.evaluate_chained()
+
+    def evaluate_chained(self) -> dict:
+        envs, policies = self.stage_envs(), self.policies()
+        seed = EVAL_SEED + self.config.seed
+        results = {"sequential": evaluate_chain(envs, policies, self.config.eval_episodes, seed)}
+        if self.config.method in ("seqdex", "seqdex_no_temporal") and self.config.max_switches > 0:
+            feasibility = [load_feasibility(self.run.feasibility(task)) for task in self.stages[1:]]
+            results["switcher"] = evaluate_chain(envs, policies, self.config.eval_episodes, seed, feasibility,
+                                                 self.config.max_switches, max(self.config.history, 1))
+        return results
+
+    def execute(self) -> dict:
+        """Runs (or resumes) the whole pipeline; writes and returns ``results.json``'s content."""
+        from seqdex_drake.chaining.single_policy import run_single_policy
+
+        start = time.perf_counter()
+        if self.config.method in CHAINED_METHODS:
+            evaluation = self.run_chained()
+        else:
+            evaluation = run_single_policy(self)
+        phases = self.run.record["done"]
+        results = {
+            "chain": self.chain.name, "stages": self.stages, "method": self.config.method, "seed": self.config.seed,
+            "success_rate": evaluation["sequential"]["success_rate"],
+            "success_rate_switcher": evaluation.get("switcher", {}).get("success_rate"),
+            "evaluation": evaluation, "ppo_steps": sum(p.get("steps", 0) for p in phases.values()),
+            "ppo_budget": pipeline_budget(self.config, len(self.stages)),
+            "wall_clock_s": sum(p.get("seconds", 0.0) for p in phases.values()),
+            "this_invocation_s": time.perf_counter() - start, "phases": phases,
+        }
+        self.run.write_results(results)
+        return results

@@ -1,0 +1,186 @@
+"""Rolling chains out in-process: one stage, the transitions that train F, and whole-chain evaluation.
+
+Stage envs are :class:`~seqdex_drake.envs.subtask_env.SubtaskEnv`-like (``reset(seed, options)``, ``step``,
+``get_state``, ``config.episode_length``) and share one scene, so a state moves between them with
+``reset(options={"initial_state": state})``. A policy is any callable from an observation to an action (see
+:func:`deterministic_policy`). Each stage runs for its own ``episode_length`` steps (its time budget) unless it
+fails first; the switcher (:func:`evaluate_chain` with feasibility functions) may hand over earlier.
+"""
+
+import dataclasses
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from seqdex_drake.chaining.feasibility import pad_history
+
+Policy = Callable[[np.ndarray], np.ndarray]
+
+
+def deterministic_policy(ppo) -> Policy:
+    """The mean action of a :class:`~seqdex_drake.rl.ppo.PPO` learner, clipped to [-1, 1], as a callable."""
+    import torch
+
+    ppo.model.eval()
+
+    def act(observation: np.ndarray) -> np.ndarray:
+        obs = torch.as_tensor(np.asarray(observation, dtype=np.float32)[None], device=ppo.device)
+        with torch.no_grad():
+            return np.clip(ppo.model.action_mean(obs)[0].cpu().numpy(), -1.0, 1.0)
+
+    return act
+
+
+@dataclasses.dataclass
+class StageResult:
+    """One stage's run."""
+
+    observations: np.ndarray
+    """(T + 1, obs_dim): the first observation and every step's."""
+    episode_return: float
+    success: bool
+    """The stage's success test at its last step."""
+    failed: bool
+    """The stage ended in task failure (terminated) or a simulator error."""
+    state: object
+    """The env's state at the end (hand it to the next stage)."""
+
+
+def run_stage(env, policy: Policy, *, seed: int | None = None, initial_state=None,
+              stop: Callable[[np.ndarray], bool] | None = None) -> StageResult:
+    """Runs ``policy`` in ``env`` from a fresh reset (``seed``) or ``initial_state`` until its time budget, a
+    failure, or ``stop(observations so far)`` is true (the switcher's early hand-over)."""
+    options = None if initial_state is None else {"initial_state": initial_state}
+    observation, info = env.reset(seed=seed, options=options)
+    observations, total, failed = [observation], 0.0, False
+    while True:
+        observation, reward, terminated, truncated, info = env.step(policy(observation))
+        observations.append(observation)
+        total += reward
+        failed = bool(terminated or info.get("simulator_error") or info.get("nan_action"))
+        if terminated or truncated or (stop is not None and stop(np.stack(observations))):
+            break
+    return StageResult(np.stack(observations), total, bool(info.get("success", False)) and not failed, failed,
+                       env.get_state())
+
+
+def run_prefix(envs: Sequence, policies: Sequence[Policy], upto: int, seed: int) -> StageResult:
+    """Runs stages ``0 .. upto`` in order from stage 0's reset (``seed``), each from the previous one's final
+    state; returns stage ``upto``'s result (its final state is the hand-over to stage ``upto + 1``)."""
+    state, result = None, None
+    for stage in range(upto + 1):
+        result = run_stage(envs[stage], policies[stage], seed=seed if stage == 0 else None, initial_state=state)
+        state = result.state
+    return result
+
+
+@dataclasses.dataclass
+class Transitions:
+    """What F^i learns from: pi^{i-1}'s terminal histories and pi^i's returns from those states."""
+
+    histories: np.ndarray
+    """(N, H, obs_dim of stage i-1)."""
+    returns: np.ndarray
+    """(N,) pi^i's returns."""
+    successes: np.ndarray
+    """(N,) pi^i's success."""
+    source_successes: np.ndarray
+    """(N,) pi^{i-1}'s success at the hand-over."""
+    states: list
+    """The hand-over states (pi^i's initial states), for T-STAR's discriminator."""
+    target_observations: np.ndarray
+    """(N, obs_dim of stage i): pi^i's first observation from each hand-over state (V-Chain's critic input)."""
+
+
+def collect_transitions(envs: Sequence, policies: Sequence[Policy], target: int, episodes: int, seed: int,
+                        history: int = 10) -> Transitions:
+    """Runs the chain prefix ``0 .. target`` ``episodes`` times (episode ``e`` seeded ``seed + e``), handing each
+    stage's final state to the next, and records pi^{target-1}'s last ``history`` observations with
+    pi^{target}'s return and success (successes and failures alike: F must learn both)."""
+    if not 1 <= target < len(envs):
+        raise ValueError(f"target must be in [1, {len(envs) - 1}] (F^1 does not exist), got {target}")
+    rows = {key: [] for key in ("histories", "returns", "successes", "source_successes", "states", "first")}
+    for episode in range(episodes):
+        result = run_prefix(envs, policies, target - 1, seed + episode)
+        state = result.state
+        nxt = run_stage(envs[target], policies[target], initial_state=state)
+        rows["histories"].append(pad_history(result.observations, history))
+        rows["returns"].append(nxt.episode_return)
+        rows["successes"].append(nxt.success)
+        rows["source_successes"].append(result.success)
+        rows["states"].append(state)
+        rows["first"].append(nxt.observations[0])
+    return Transitions(np.stack(rows["histories"]), np.array(rows["returns"]), np.array(rows["successes"]),
+                       np.array(rows["source_successes"]), rows["states"], np.stack(rows["first"]))
+
+
+@dataclasses.dataclass
+class ChainOutcome:
+    success: bool
+    """The last stage's success test at the end of its budget."""
+    stages_run: list[int]
+    """Stage indices in the order they ran (switches show as repeats or jumps)."""
+    switches: int
+    """Stage selections that were not the plain sequential successor (bypass, recovery, restart)."""
+    steps: int
+
+
+def _scores(feasibility: Sequence, history: np.ndarray) -> np.ndarray:
+    """c^j = F^j / h^j for j = 1..K-1 (index j scores the hand-over to stage j); NaN where F^j reads another
+    observation layout than the active stage's (it cannot be evaluated on this history)."""
+    scores = np.full(len(feasibility) + 1, np.nan)
+    for j, entry in enumerate(feasibility, start=1):
+        if entry is not None and entry.model.obs_dim == history.shape[-1]:
+            scores[j] = entry.model.predict(history) / entry.threshold
+    return scores
+
+
+def run_chain(envs: Sequence, policies: Sequence[Policy], seed: int, feasibility: Sequence | None = None,
+              max_switches: int = 0, history: int = 10) -> ChainOutcome:
+    """One chain episode from stage 0's reset distribution.
+
+    With ``max_switches = 0`` (or no feasibility functions) the stages run in order, each for its time budget
+    (plain sequential execution). Otherwise the paper's switcher runs: in stage i, once the next stage's score
+    c^{i+1} = F^{i+1}/h^{i+1} exceeds 1 (or stage i's budget runs out), the stages are visited from the last
+    back to the second and the first with c > 1 runs next (a bypass if it is beyond i+1); if none qualifies the
+    chain restarts with stage 0 from the current state. Each selection other than i+1 uses up one switch; with
+    none left the order is sequential. ``feasibility[j-1]`` is F^j (objects with ``.model`` and ``.threshold``,
+    e.g. :class:`~seqdex_drake.chaining.feasibility_io.FeasibilityFile`; None for a missing one).
+    """
+    switching = max_switches > 0 and feasibility is not None
+    last = len(envs) - 1
+    stage, state, switches, steps, stages_run = 0, None, 0, 0, []
+    budget = sum(env.config.episode_length for env in envs) * (1 + max_switches)
+    while True:
+        stages_run.append(stage)
+
+        def early(observations, stage=stage):
+            if not switching or stage == last:
+                return False
+            return bool(_scores(feasibility, pad_history(observations, history))[stage + 1] > 1.0)
+
+        result = run_stage(envs[stage], policies[stage], seed=seed if state is None else None,
+                           initial_state=state, stop=early)
+        steps += len(result.observations) - 1
+        state = result.state
+        if stage == last:  # The last stage's budget (or a failure) ends the chain episode.
+            return ChainOutcome(result.success, stages_run, switches, steps)
+        if result.failed or steps >= budget:
+            return ChainOutcome(False, stages_run, switches, steps)
+        following = stage + 1
+        if switching and switches < max_switches:
+            scores = _scores(feasibility, pad_history(result.observations, history))
+            chosen = next((j for j in range(last, 0, -1) if scores[j] > 1.0), 0)
+            if chosen != following:
+                switches += 1
+            following = chosen
+        stage = following
+
+
+def evaluate_chain(envs: Sequence, policies: Sequence[Policy], episodes: int, seed: int,
+                   feasibility: Sequence | None = None, max_switches: int = 0, history: int = 10) -> dict:
+    """Success rate of ``episodes`` chain episodes (episode ``e`` seeded ``seed + e``), see :func:`run_chain`."""
+    outcomes = [run_chain(envs, policies, seed + e, feasibility, max_switches, history) for e in range(episodes)]
+    return {"success_rate": float(np.mean([o.success for o in outcomes])),
+            "mean_switches": float(np.mean([o.switches for o in outcomes])),
+            "mean_steps": float(np.mean([o.steps for o in outcomes])), "episodes": episodes}

@@ -1,0 +1,45 @@
+"""Lower (hand-over chain, stage 2): bring the hand centre to a point just above the block in a few steps.
+
+Reset (standalone): the hand centre within 1.5 cm of the block's vertical line (Reach's success) at a height
+of 12-26 cm above its centre, as Reach leaves it. From a hand-over, Reach's terminal state. The goal point is
+10 cm above the block's centre; the episode is 10 steps of at most 5 mm, so starts more than about 6.5 cm
+above the goal height cannot succeed. Reward: lambda1 exp(-alpha0 d) + penalties, d the distance from the
+hand centre to the goal point. Success (at the episode's end): d < 0.015 m.
+"""
+
+import numpy as np
+
+from seqdex_drake.tasks.base import Task, TaskConfig
+from seqdex_drake.tasks.handover_common import hand_center, place_block_and_hand
+from seqdex_drake.tasks.rewards import RewardWeights, penalties
+
+
+def default_config() -> TaskConfig:
+    return TaskConfig(
+        name="lower", scenario="handover/lower", episode_length=10, ema=1.0,
+        reward=RewardWeights(progress=1.0, action=-0.001, torque=0.0, alpha0=20.0),
+        object_types=[1], success_threshold=[0.015, 0.10],  # [distance to the goal point (m), goal height above the block (m)]
+        drop_height=0.3)
+
+
+#: Standalone start offsets of the hand centre from the block's centre (m): [low, high] per axis.
+START_LOW, START_HIGH = np.array([-0.01, -0.01, 0.12]), np.array([0.01, 0.01, 0.26])
+
+
+class LowerTask(Task):
+    """Lower the hand to just above the block."""
+
+    def reset(self, env, rng) -> None:
+        place_block_and_hand(env, rng, START_LOW, START_HIGH)
+
+    def distance(self, env) -> float:
+        goal = env.object_position() + [0.0, 0.0, self.config.success_threshold[1]]
+        return float(np.linalg.norm(hand_center(env) - goal))
+
+    def reward_terms(self, env, action):
+        w = self.config.reward
+        return {"closeness": w.progress * float(np.exp(-w.alpha0 * self.distance(env))),
+                **penalties(w, action, env.hand_torque())}
+
+    def is_success(self, env) -> bool:
+        return self.distance(env) < self.config.success_threshold[0]

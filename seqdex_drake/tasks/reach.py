@@ -1,0 +1,43 @@
+"""Reach (hand-over chain, stage 1): bring the hand centre over the block, in x-y only.
+
+Reset: an upright block on the table, the open hand's centre 3-11 cm away in x and y and 12-26 cm above the
+block's centre. Reward: lambda1 exp(-alpha0 d_xy) + penalties, d_xy the horizontal distance from the hand
+centre to the block's centre; the height is deliberately not rewarded (see ``handover_common``). Success (at
+the episode's end, which is the hand-over): d_xy < 0.015 m.
+"""
+
+import numpy as np
+
+from seqdex_drake.tasks.base import Task, TaskConfig
+from seqdex_drake.tasks.handover_common import hand_center, place_block_and_hand
+from seqdex_drake.tasks.rewards import RewardWeights, penalties
+
+
+def default_config() -> TaskConfig:
+    return TaskConfig(
+        name="reach", scenario="handover/reach", episode_length=30, ema=1.0,
+        reward=RewardWeights(progress=1.0, action=-0.001, torque=0.0, alpha0=20.0),
+        object_types=[1], success_threshold=[0.015],  # [horizontal distance of the hand centre to the block (m)]
+        drop_height=0.3)
+
+
+#: Start offsets of the hand centre from the block's centre (m): [low, high] per axis.
+START_LOW, START_HIGH = np.array([-0.08, -0.08, 0.12]), np.array([0.08, 0.08, 0.26])
+
+
+class ReachTask(Task):
+    """Hover over the block (any height)."""
+
+    def reset(self, env, rng) -> None:
+        place_block_and_hand(env, rng, START_LOW, START_HIGH)
+
+    def xy_distance(self, env) -> float:
+        return float(np.linalg.norm((hand_center(env) - env.object_position())[:2]))
+
+    def reward_terms(self, env, action):
+        w = self.config.reward
+        return {"xy_closeness": w.progress * float(np.exp(-w.alpha0 * self.xy_distance(env))),
+                **penalties(w, action, env.hand_torque())}
+
+    def is_success(self, env) -> bool:
+        return self.xy_distance(env) < self.config.success_threshold[0]
