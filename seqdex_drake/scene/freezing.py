@@ -39,12 +39,48 @@ class FrozenSet:
     """(n, 7) pinned free-body positions [qw, qx, qy, qz, x, y, z] in the world."""
 
 
+# _quat_to_matrices: R's nine entries are (1 -) 2 * (product_a +- product_b) of the quaternion's components.
+_PRODUCTS = np.array([(0, 1), (0, 2), (0, 3), (1, 1), (1, 2), (1, 3), (2, 2), (2, 3), (3, 3)])  # wx .. zz
+_WX, _WY, _WZ, _XX, _XY, _XZ, _YY, _YZ, _ZZ = range(9)
+_ENTRY_A = np.array([_YY, _XY, _XZ, _XY, _XX, _YZ, _XZ, _YZ, _XX])
+_ENTRY_B = np.array([_ZZ, _WZ, _WY, _WZ, _ZZ, _WX, _WY, _WX, _YY])
+_ENTRY_SIGN = np.array([1.0, -1.0, 1.0, 1.0, 1.0, -1.0, -1.0, 1.0, 1.0])
+_DIAGONAL = np.array([0, 4, 8])
+
+
 def _quat_to_matrices(q: np.ndarray) -> np.ndarray:
-    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
+    """(n, 3, 3) rotation matrices of (n, 4) unit quaternions [w, x, y, z] (the textbook formula, e.g.
+    R[0, 1] = 2 (xy - wz), R[0, 0] = 1 - 2 (yy + zz), evaluated for all entries at once)."""
+    products = q[:, _PRODUCTS[:, 0]] * q[:, _PRODUCTS[:, 1]]
+    R = 2 * (products[:, _ENTRY_A] + products[:, _ENTRY_B] * _ENTRY_SIGN)  # a + (-1.0 * b) == a - b exactly.
+    R[:, _DIAGONAL] = 1 - R[:, _DIAGONAL]
+    # C order, as np.stack gives: einsum's summation order (so its last bit) follows its operands' memory layout.
+    return np.ascontiguousarray(R.reshape(-1, 3, 3))
+
+
+def _cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross products of (n, 3) arrays: ``np.cross``'s arithmetic without its per-call overhead."""
+    out = np.empty((len(a), 3))
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
+
+
+@dataclasses.dataclass
+class _Pinned:
+    """What the pin force needs of one frozen set that does not change between plant steps."""
+
+    q_index: np.ndarray
+    v_index: np.ndarray
+    force_index: np.ndarray
+    mass: np.ndarray
+    anti_gravity: np.ndarray
+    p_BoBcm_B: np.ndarray
+    I_Bcm_B: np.ndarray
+    p_WBcm0: np.ndarray
+    w0: np.ndarray
+    u0: np.ndarray
 
 
 class ObjectFreezer(LeafSystem):
@@ -76,6 +112,7 @@ class ObjectFreezer(LeafSystem):
             AbstractValue.Make(FrozenSet(np.zeros(n, dtype=bool), np.zeros((n, 7)))))
         self.DeclareVectorInputPort("plant_state", self._nq + self._nv)
         self.DeclareVectorOutputPort("generalized_force", self._nv, self._calc_force)
+        self._pinned_memo: tuple = (None, None)
 
     def frozen_set(self, context) -> FrozenSet:
         """The current frozen set (read-only view)."""
@@ -85,39 +122,52 @@ class ObjectFreezer(LeafSystem):
         """Replaces the frozen set in ``context`` (the freezer's own context)."""
         context.get_mutable_abstract_state(self._state_index).set_value(frozen)
 
+    def _pinned(self, frozen: FrozenSet) -> _Pinned | None:
+        """The frozen set's constant terms, recomputed only when the set or its pins change (the plant steps
+        several times per control step with the same set). A memo keyed on the values, so any context may ask."""
+        key = (frozen.frozen.tobytes(), frozen.q_pin.tobytes())
+        if self._pinned_memo[0] != key:
+            index = np.flatnonzero(frozen.frozen)
+            pinned = None
+            if index.size:
+                pin = frozen.q_pin[index]
+                p_BoBcm_B = self._p_BoBcm_B[index]
+                R_WB0 = _quat_to_matrices(pin[:, :4])
+                pinned = _Pinned(
+                    q_index=self._q_start[index, None] + np.arange(7),
+                    v_index=self._nq + self._v_start[index, None] + np.arange(6),
+                    force_index=self._v_start[index, None] + np.arange(6), mass=self._mass[index, None],
+                    anti_gravity=self._anti_gravity[index], p_BoBcm_B=p_BoBcm_B, I_Bcm_B=self._I_Bcm_B[index],
+                    p_WBcm0=pin[:, 4:] + np.einsum("nij,nj->ni", R_WB0, p_BoBcm_B), w0=pin[:, :1], u0=pin[:, 1:4])
+            self._pinned_memo = (key, pinned)
+        return self._pinned_memo[1]
+
     def _calc_force(self, context, output: BasicVector) -> None:
-        frozen = self.frozen_set(context)
         force = np.zeros(self._nv)
-        index = np.flatnonzero(frozen.frozen)
-        if index.size:
+        pinned = self._pinned(self.frozen_set(context))
+        if pinned is not None:
             x = self.get_input_port().Eval(context)
-            q = x[self._q_start[index, None] + np.arange(7)]
-            v = x[self._nq + self._v_start[index, None] + np.arange(6)]
-            pin = frozen.q_pin[index]
+            q, v = x[pinned.q_index], x[pinned.v_index]
             R_WB = _quat_to_matrices(q[:, :4] / np.linalg.norm(q[:, :4], axis=1, keepdims=True))
-            R_WB0 = _quat_to_matrices(pin[:, :4])
-            p_BoBcm_B = self._p_BoBcm_B[index]
-            p_BoBcm_W = np.einsum("nij,nj->ni", R_WB, p_BoBcm_B)
+            p_BoBcm_W = np.einsum("nij,nj->ni", R_WB, pinned.p_BoBcm_B)
             # The pin acts at the centre of mass, where translation and rotation decouple.
             p_WBcm = q[:, 4:] + p_BoBcm_W
-            p_WBcm0 = pin[:, 4:] + np.einsum("nij,nj->ni", R_WB0, p_BoBcm_B)
             w_WB = v[:, :3]
-            v_WBcm = v[:, 3:] + np.cross(w_WB, p_BoBcm_W)
+            v_WBcm = v[:, 3:] + _cross_rows(w_WB, p_BoBcm_W)
             # Rotation error as a small-angle vector in W: 2 * vec(q_pin * conj(q)), sign-fixed.
-            w0, u0 = pin[:, :1], pin[:, 1:4]
+            w0, u0 = pinned.w0, pinned.u0
             w1, u1 = q[:, :1], -q[:, 1:4]
             err_w = w0 * w1 - np.sum(u0 * u1, axis=1, keepdims=True)
-            err_u = w0 * u1 + w1 * u0 + np.cross(u0, u1)
+            err_u = w0 * u1 + w1 * u0 + _cross_rows(u0, u1)
             theta = 2.0 * np.sign(err_w + 1e-12) * err_u
-            I_Bcm_W = np.einsum("nij,njk,nlk->nil", R_WB, self._I_Bcm_B[index], R_WB)
+            I_Bcm_W = np.einsum("nij,njk,nlk->nil", R_WB, pinned.I_Bcm_B, R_WB)
             omega = PIN_OMEGA
-            f_Bcm_W = self._mass[index, None] * (omega**2 * (p_WBcm0 - p_WBcm) - 2 * omega * v_WBcm)
-            f_Bcm_W += self._anti_gravity[index]
+            f_Bcm_W = pinned.mass * (omega**2 * (pinned.p_WBcm0 - p_WBcm) - 2 * omega * v_WBcm)
+            f_Bcm_W += pinned.anti_gravity
             tau_Bcm_W = np.einsum("nij,nj->ni", I_Bcm_W, omega**2 * theta - 2 * omega * w_WB)
             # Shift the spatial force from Bcm to Bo, where the floating joint's generalized forces act.
-            tau_Bo_W = tau_Bcm_W + np.cross(p_BoBcm_W, f_Bcm_W)
-            force[self._v_start[index, None] + np.arange(3)] = tau_Bo_W
-            force[self._v_start[index, None] + 3 + np.arange(3)] = f_Bcm_W
+            tau_Bo_W = tau_Bcm_W + _cross_rows(p_BoBcm_W, f_Bcm_W)
+            force[pinned.force_index] = np.concatenate([tau_Bo_W, f_Bcm_W], axis=1)
         output.SetFromVector(force)
 
 

@@ -28,7 +28,6 @@ from seqdex_drake.scene.freezing import FrozenSet, ObjectBody
 #: Parking lot for unused objects: a row 1.5 m behind the robot, off the table, frozen in mid-air.
 PARKING_ORIGIN = np.array([-1.5, -1.0, 0.3])
 PARKING_PITCH = 0.15
-_ROBOT, _STATIC = -1, -2
 
 
 class SceneObjects:
@@ -63,10 +62,7 @@ class SceneObjects:
         self._tip_frames = [self.plant.GetFrameByName(f, hand) for f in FINGERTIP_FRAMES]
         self._robot_bodies = set(self.plant.GetBodyIndices(hand)) | set(
             self.plant.GetBodyIndices(self.plant.GetModelInstanceByName("franka")))
-        # Collision geometry -> object index, or _ROBOT (the wake check's contact pairs name geometries).
-        self._geometry_owner = {g: i for i, geometries in enumerate(self._geometries) for g in geometries}
-        self._geometry_owner.update({g: _ROBOT for body in self._robot_bodies
-                                     for g in self.plant.GetCollisionGeometriesForBody(self.plant.get_body(body))})
+        self._object_of_body = {body.index(): i for i, body in enumerate(self.bodies)}
         self._palm_frame = self.plant.GetBodyByName(PALM_BODY, hand).body_frame()
 
     # ----------------------------------------------------------------------------------------- access
@@ -236,7 +232,7 @@ class SceneObjects:
         reach = np.min(np.linalg.norm(p_WO[:, None, :] - np.vstack([hand, p_WO[moving]])[None, :, :], axis=2),
                        axis=1) < 0.2
         if (frozen & reach & ~wake).any():
-            wake |= frozen & self._touched(root, frozen, moving)
+            wake |= frozen & self._touched(plant_context, frozen, moving)
         still = (~frozen) & (speed < config.sleep_speed) & ~near_hand
         self._still_ticks = np.where(still, self._still_ticks + 1, 0)
         sleep = self._still_ticks >= config.sleep_ticks if config.enabled and config.sleep_ticks > 0 else still & False
@@ -246,20 +242,20 @@ class SceneObjects:
             self._still_ticks = np.where(sleep, 0, ticks)
         return [n for n, w in zip(self.names, wake, strict=True) if w]
 
-    def _touched(self, root: Context, frozen: np.ndarray, moving: np.ndarray) -> np.ndarray:
-        """Frozen objects in contact with the robot or with a moving object.
+    def _touched(self, plant_context: Context, frozen: np.ndarray, moving: np.ndarray) -> np.ndarray:
+        """Frozen objects in contact with the robot or with a moving object (the current state's contacts).
 
-        The pairs are the point-contact pairs of the current state: the geometry query that the plant's contact
-        results list, without the contact solve that evaluating those results would repeat.
+        The contact results share the discrete solve of the current state with the motor-torque (tactile)
+        observation evaluated right after, so reading them here costs little extra.
         """
         touched = np.zeros(len(self.names), dtype=bool)
-        query = self.scene_graph.get_query_output_port().Eval(self.scene_graph.GetMyContextFromRoot(root))
-        owner = self._geometry_owner
-        for pair in query.ComputePointPairPenetration():
-            a, b = owner.get(pair.id_A, _STATIC), owner.get(pair.id_B, _STATIC)
-            for mine, other in ((a, b), (b, a)):
-                if mine < 0 or not frozen[mine]:
+        results = self.plant.get_contact_results_output_port().Eval(plant_context)
+        for k in range(results.num_point_pair_contacts()):
+            info = results.point_pair_contact_info(k)
+            a, b = self._object_of_body.get(info.bodyA_index()), self._object_of_body.get(info.bodyB_index())
+            for mine, other, other_body in ((a, b, info.bodyB_index()), (b, a, info.bodyA_index())):
+                if mine is None or not frozen[mine]:
                     continue
-                if other == _ROBOT or (other >= 0 and moving[other]):
+                if (other is not None and moving[other]) or other_body in self._robot_bodies:
                     touched[mine] = True
         return touched
