@@ -6,6 +6,10 @@ reward terms, wake check) for about ``--seconds``; then, from the same state, ``
 number of control periods with ``env.simulator.AdvanceTo`` alone, one call per period, the last targets held (no
 env code). Zero actions keep the targets where the warm-up left them, so both runs simulate nearly the same motion.
 The two alternate ``--repeats`` times and the best of each is kept (other processes may load the CPU).
+``raw_with_tactile_solve_steps_per_s`` adds to the raw loop only the discrete contact solve that the motor-tactile
+observation (the hand's net actuation at the new state, with the targets then replaced by the next action's)
+forces on every env step; ``env_over_raw_ceiling`` = that rate / raw is the most the env/raw ratio can reach
+with these observations, however cheap the rest of the env step.
 
 Vector env (grasp, or every sub-task with ``--all``): ``ProcessVectorEnv`` with 1 and 2 workers, alternating,
 ``--vector-steps`` vector steps of zero actions each (automatic resets included); steps/s counts env steps
@@ -54,6 +58,23 @@ def _time_raw(env, state, steps: int) -> float:
     return time.perf_counter() - start
 
 
+def _time_raw_tactile(env, state, steps: int) -> float:
+    """Like :func:`_time_raw`, plus what the motor-tactile observation forces on any env step: the hand's net
+    actuation evaluated at the new state (a discrete contact solve with the current targets), after which new
+    targets are written (here the same values), so the next step solves again rather than reusing it."""
+    env.reset(options={"initial_state": state})
+    t0, period = env.context.get_time(), env.scenario.control_period
+    hand = env._hand_source
+    hand_context = hand.GetMyMutableContextFromRoot(env.context)
+    target = hand.get_source_value(hand_context).CopyToVector()
+    start = time.perf_counter()
+    for k in range(1, steps + 1):
+        env.simulator.AdvanceTo(t0 + k * period)
+        env.hand_torque()
+        hand.get_mutable_source_value(hand_context).SetFromVector(target)
+    return time.perf_counter() - start
+
+
 def single_process(name: str, seconds: float, repeats: int) -> dict:
     """Best-of-``repeats`` env and raw step rates of sub-task ``name`` in this process."""
     env = make_env(name)
@@ -62,13 +83,16 @@ def single_process(name: str, seconds: float, repeats: int) -> dict:
         env.step(np.zeros(env.action_space.shape))
     state = env.get_state()
     max_steps = env.config.episode_length - 1  # Stay inside one episode (no truncation).
-    env_rate = raw_rate = 0.0
+    env_rate = raw_rate = tactile_rate = 0.0
     for _ in range(repeats):
         steps, elapsed = _time_env(env, state, seconds, max_steps)
         env_rate = max(env_rate, steps / elapsed)
         raw_rate = max(raw_rate, steps / _time_raw(env, state, steps))
+        tactile_rate = max(tactile_rate, steps / _time_raw_tactile(env, state, steps))
     return {"env_steps_per_s": round(env_rate, 1), "raw_steps_per_s": round(raw_rate, 1),
-            "env_over_raw": round(env_rate / raw_rate, 3), "steps": steps}
+            "env_over_raw": round(env_rate / raw_rate, 3), "steps": steps,
+            "raw_with_tactile_solve_steps_per_s": round(tactile_rate, 1),
+            "env_over_raw_ceiling": round(tactile_rate / raw_rate, 3)}
 
 
 def _cpu_seconds(pids: list[int]) -> tuple[float, float] | None:
