@@ -26,10 +26,10 @@ def tiny_config(**overrides) -> PPOConfig:
     return PPOConfig(**values)
 
 
-def _kill_worker_after_first_update(index: int):
+def _kill_worker_after_first_update(vector_env, index: int):
     def callback(ppo: PPO, metrics: dict) -> None:
         if ppo.num_updates == 1:
-            os.kill(ppo._env.pids[index], signal.SIGKILL)
+            os.kill(vector_env.pids[index], signal.SIGKILL)
     return callback
 
 
@@ -62,7 +62,7 @@ def test_training_survives_a_killed_worker_only_with_restarts_on(tmp_path, max_r
     try:
         ppo = PPO.for_env(tiny_config(), vector_env)
         train = lambda: ppo.train(vector_env, tmp_path, total_steps=3 * 2 * 4, progress=False,  # noqa: E731
-                                  callbacks=[_kill_worker_after_first_update(1)])
+                                  callbacks=[_kill_worker_after_first_update(vector_env, 1)])
         if max_restarts == 0:  # Today's default: the failure stops training, naming the worker.
             with pytest.raises(WorkerError, match="worker 1 failed.*SIGKILL"):
                 train()

@@ -137,9 +137,10 @@ def test_every_ray_socket_stays_on_loopback(ray_env):
     assert not bad, f"Ray sockets off loopback (pid, kind, local, remote, state): {bad}"
 
 
-def test_a_killed_actor_is_restarted_once_then_reported(ray_instance):
+def test_a_killed_actor_is_restarted_once_then_a_stalled_one_is_reported(ray_instance):
     vector_env = make_vector_env(TASK, 1, seed=SEED, config=CONFIG, backend="ray", max_restarts=1, timeout=120.0)
     assert isinstance(vector_env, RayVectorEnv)
+    stopped = None
     try:
         observations, _ = vector_env.reset()
         first_pid = vector_env.pids[0]
@@ -149,11 +150,17 @@ def test_a_killed_actor_is_restarted_once_then_reported(ray_instance):
         assert "died" in infos[0]["worker_error"] and vector_env.lost_episodes == 1
         np.testing.assert_array_equal(infos[0]["final_observation"], observations[0])
         assert vector_env.pids[0] != first_pid and np.isfinite(after).all()
-        os.kill(vector_env.pids[0], signal.SIGKILL)
-        with pytest.raises(WorkerError, match=r"(?s)worker 0 failed: the actor died.*restart budget of 1 used up"):
+        stopped, vector_env.timeout = vector_env.pids[0], 2.0
+        os.kill(stopped, signal.SIGSTOP)  # Alive but never answers; the restart budget is used up.
+        with pytest.raises(WorkerError, match=r"worker 0 failed: no answer within 2 s.*restart budget of 1 used up"):
             vector_env.step(np.zeros((1, 19)))
         assert vector_env.closed
     finally:
+        if stopped is not None:
+            try:
+                os.kill(stopped, signal.SIGCONT)  # Let a stopped actor process (if still there) exit.
+            except ProcessLookupError:
+                pass
         vector_env.close()
     assert ray_instance.is_initialized()  # The env did not start Ray, so it left it running.
 

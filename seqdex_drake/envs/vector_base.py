@@ -21,10 +21,11 @@ deterministic, and distinct from every other env's seed). In :meth:`~VectorEnvBa
 reported as a *truncation* of that env with reward 0, the fresh episode's first observation, and an info with
 ``worker_restarted: True``, ``worker_error`` (what happened), ``final_observation`` (the last observation the
 caller saw for that env, so a learner can bootstrap), ``final_info`` and ``reset_info``; it has no ``success``
-key, so success rates skip it. The counters ``restarts`` (per env) and ``lost_episodes`` keep count. A failure
-during :meth:`~VectorEnvBase.reset` / :meth:`~VectorEnvBase.reset_at` restarts the worker and performs the
-requested reset; :meth:`~VectorEnvBase.get_states` never restarts (a fresh env has not got the lost state). The
-default (``max_restarts=0``) raises on the first failure, as before: restarting hides bugs, so it is opt-in.
+key, so success rates skip it (episode-return statistics do count its partial return). The counters
+``restarts`` (per env) and ``lost_episodes`` keep count. A failure during :meth:`~VectorEnvBase.reset` /
+:meth:`~VectorEnvBase.reset_at` restarts the worker and performs the requested reset;
+:meth:`~VectorEnvBase.get_states` never restarts (a fresh env has not got the lost state). The default
+(``max_restarts=0``) raises on the first failure, as before: restarting hides bugs, so it is opt-in.
 """
 
 import os
