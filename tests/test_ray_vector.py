@@ -17,7 +17,7 @@ from seqdex_drake.envs.factory import make_vector_env
 from seqdex_drake.envs.ray_vector import RayVectorEnv, import_ray, init_ray
 from seqdex_drake.envs.subtask_env import EnvState
 from seqdex_drake.envs.vector import ProcessVectorEnv, WorkerError
-from seqdex_drake.tasks.registry import default_config
+from seqdex_drake.tasks.registry import default_config, make_env
 
 TASK, SEED = "grasp", 3
 CONFIG = dataclasses.replace(default_config(TASK), episode_length=5)
@@ -63,7 +63,8 @@ def test_ray_backend_reproduces_the_process_backend_exactly(ray_env):
             assert ray_info.keys() == process_info.keys()
             assert all(ray_info[key] == process_info[key] for key in ray_info if key.startswith("reward/"))
     assert any(step[3].any() for step in ray_steps[1:-1])  # The horizon crossed an autoreset.
-    np.testing.assert_array_equal(ray_steps[-1][0], process_steps[-1][0])  # reset_at, seeded as given.
+    np.testing.assert_array_equal(ray_steps[-1][0], process_steps[-1][0])  # reset_at, seeded as given:
+    np.testing.assert_array_equal(ray_steps[-1][0], make_env(TASK, CONFIG).reset(seed=SEED + 10)[0])
     states = ray_env.get_states()
     assert len(states) == 2 and all(isinstance(state, EnvState) for state in states)
 
