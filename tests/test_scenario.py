@@ -16,6 +16,8 @@ from seqdex_drake.scenario import (
 EXPECTED = {
     "building_blocks/search", "building_blocks/orient", "building_blocks/grasp", "building_blocks/insert",
     "tool_positioning/tool_grasp", "tool_positioning/tool_reorient",
+    "building_blocks/chain",  # the whole Building Blocks task in one scene (scripts/simulate_chain.py)
+    "handover/reach", "handover/lower",  # the cheap two-stage chain (benchmarks/chain_methods.py)
 }
 
 

@@ -28,6 +28,8 @@ from seqdex_drake.tasks.registry import default_config, make_env, observation_sp
 
 #: Evaluation episodes are seeded from here on (training resets use the run seed and its step counts).
 EVAL_SEED = 100_000
+#: Observations kept per transition (the history ablation goes up to H = 15).
+TRANSITION_HISTORY = 15
 
 #: In-process envs, built once per (task, config, slot) and reused by every phase and pipeline of this process
 #: (building a station diagram costs seconds; a reset with a seed makes a reused env as good as new).
@@ -53,6 +55,28 @@ class Pipeline:
         progress: show PPO progress bars.
         log: where one-line progress messages go.
     """
+
+    @classmethod
+    def open(cls, run_dir, progress: bool = False, log: Callable[[str], None] = print) -> "Pipeline":
+        """The pipeline run already in ``run_dir`` (its chain and config from ``pipeline.json``)."""
+        from pathlib import Path
+
+        from seqdex_drake.chaining.chain import LoadChain
+        from seqdex_drake.chaining.pipeline import PipelineError
+
+        record_path = Path(run_dir) / "pipeline.json"
+        if not record_path.is_file():
+            raise PipelineError(f"{run_dir} holds no pipeline run ({record_path.name} is missing); start one with "
+                                f"seqdex pipeline --chain <chain> --run-dir {run_dir}")
+        import json
+
+        record = json.loads(record_path.read_text())
+        config = PipelineConfig(**record["config"])
+        chain = LoadChain(config.chain)
+        if chain.stages != record["stages"]:
+            raise PipelineError(f"chain {config.chain!r} now has stages {chain.stages}, the run in {run_dir} was "
+                                f"made with {record['stages']}")
+        return cls(chain, config, run_dir, resume=True, progress=progress, log=log)
 
     def __init__(self, chain: ChainSpec, config: PipelineConfig, run_dir, resume: bool = False,
                  progress: bool = False, log: Callable[[str], None] = print):
@@ -181,37 +205,73 @@ class Pipeline:
 
         return self._timed(phase, work)
 
+    def collect_transition_data(self, phase: str, index: int) -> dict:
+        """Chain-prefix rollouts into stage ``index``: pi^{index-1}'s terminal histories (H = 15, the longest the
+        history ablation uses) with pi^{index}'s returns and successes, saved to ``transitions/<task>.npz``."""
+        def work():
+            data = collect_transitions(self.stage_envs(), self.policies(index), index,
+                                       self.config.transition_episodes, self.config.seed + 104729 * index,
+                                       history=max(TRANSITION_HISTORY, self.config.history))
+            arrays = {"histories": data.histories, "returns": data.returns, "successes": data.successes,
+                      "source_successes": data.source_successes}
+            payload = io.BytesIO()
+            np.savez(payload, **arrays)
+            atomic_write(self.run.transitions(self.stages[index]), lambda file: file.write(payload.getvalue()))
+            return {"episodes": len(data.returns), "target_success_rate": float(data.successes.mean()),
+                    "mean_return": float(data.returns.mean())}
+
+        return self._timed(phase, work)
+
+    def transition_data(self, index: int) -> dict:
+        path = self.run.transitions(self.stages[index])
+        if not path.is_file():
+            raise FileNotFoundError(f"{path} does not exist; collect it first (seqdex pipeline, or seqdex "
+                                    f"feasibility, which collects it when missing)")
+        with np.load(path) as data:
+            return {key: data[key] for key in data.files}
+
+    def fit_feasibility(self, index: int, history: int, temporal: bool, path) -> dict:
+        """Trains F^{index} (attention over ``history`` steps, or the MLP on the last observation) on the saved
+        transitions, sets h from the successful returns, and writes it to ``path``."""
+        data = self.transition_data(index)
+        source, target = self.stages[index - 1], self.stages[index]
+        config = dataclasses.replace(self.config.feasibility_config(), history=history if temporal else 0,
+                                     temporal=temporal)
+        model, metrics = train_feasibility(data["histories"], data["returns"], config)
+        if data["successes"].any():
+            threshold = feasibility_threshold(data["returns"], data["successes"], self.config.threshold_quantile)
+        else:  # Without a success h is undefined; the best return seen keeps c > 1 rare. Said loudly.
+            threshold = float(max(data["returns"].max(), 1e-6))
+            self.log(f"warning: no successful {target} execution in the transitions; h set to the best return "
+                     f"{threshold:.3g}, so the switcher will rarely hand over to {target}")
+        dim = data["histories"].shape[-1]
+        save_feasibility(path, model, config, threshold, observation_spec(source, dim), source_task=source,
+                         target_task=target, metrics=metrics)
+        return {"threshold": threshold, "val_r2": float(metrics.get("val_r2", np.nan)), "history": config.history}
+
     def transition_bonus(self, phase: str, index: int):
         """The bonus that fine-tunes pi_{index-1} toward states stage ``index`` succeeds from (None: Policy-Seq)."""
         method = self.config.method
         if method == "policy_seq":
             return None
-        envs, policies = self.stage_envs(), self.policies(index)
+        envs = self.stage_envs()
         source, target = self.stages[index - 1], self.stages[index]
         source_dim = envs[index - 1].observation_space.shape[0]
+        if method != "vchain":  # V-Chain's critic needs no data of its own.
+            self.collect_transition_data(f"transitions_{phase}", index)
 
         def work():
-            data = collect_transitions(envs, policies, index, self.config.transition_episodes,
-                                       self.config.seed + 104729 * index)
-            outcome = {"episodes": len(data.returns), "target_success_rate": float(data.successes.mean()),
-                       "mean_return": float(data.returns.mean())}
+            if method == "vchain":
+                return {"critic": str(self.run.policy(target))}
+            data = self.transition_data(index)
             if method in ("seqdex", "seqdex_no_temporal"):
-                config = self.config.feasibility_config()
-                model, metrics = train_feasibility(data.histories, data.returns, config)
-                if data.successes.any():
-                    threshold = feasibility_threshold(data.returns, data.successes, self.config.threshold_quantile)
-                else:  # Without a success h is undefined; the best return seen keeps c > 1 rare. Said loudly.
-                    threshold = float(max(data.returns.max(), 1e-6))
-                    self.log(f"[{method}] warning: no successful {target} execution; h set to the best return "
-                             f"{threshold:.3g}")
-                save_feasibility(self.run.feasibility(target), model, config, threshold,
-                                 observation_spec(source, source_dim), source_task=source, target_task=target,
-                                 metrics=metrics)
-                outcome.update(threshold=threshold, val_r2=float(metrics.get("val_r2", np.nan)))
-            elif method == "tstar":
+                return self.fit_feasibility(index, self.config.history, method == "seqdex",
+                                            self.run.feasibility(target))
+            outcome = {}
+            if method == "tstar":
                 discriminator = TStarDiscriminator(source_dim, TStarConfig(seed=self.config.seed))
-                last = torch.as_tensor(data.histories[:, -1], dtype=torch.float32)
-                positive = last[torch.as_tensor(data.successes)]
+                last = torch.as_tensor(data["histories"][:, -1], dtype=torch.float32)
+                positive = last[torch.as_tensor(data["successes"])]
                 if len(positive) == 0 and self.config.handoff_failures:
                     positive = last
                 if len(positive) == 0:
@@ -249,25 +309,49 @@ class Pipeline:
         return value
 
     # -------------------------------------------------------------------------------------------- runs
-    def run_chained(self) -> dict:
-        """Forward initialization, then ``iterations`` backward passes (Policy-Seq: fine-tuning without bonus)."""
-        config, stages = self.config, self.stages
+    def forward(self) -> None:
+        """Forward initialization: train each stage in order, stage i+1 from stage i's terminal buffer."""
+        stages = self.stages
         for i, task in enumerate(stages):
             buffer = self.run.buffer(stages[i - 1], task) if i > 0 else None
-            self.train_stage(f"forward_{i}_{task}", i, config.stage_steps, buffer_path=buffer)
+            self.train_stage(f"forward_{i}_{task}", i, self.config.stage_steps, buffer_path=buffer)
             if i + 1 < len(stages):
                 self.collect_buffer(f"buffer_0_{task}", i)
-        for m in range(1, config.iterations + 1):
+
+    def backward(self) -> None:
+        """``iterations`` backward passes: for i = K..2 build stage i's bonus and fine-tune pi_{i-1} with
+        ``lambda1 R + lambda2 bonus`` (Policy-Seq: no bonus, the same budget); refresh the buffers between passes."""
+        stages = self.stages
+        for phase in (f"forward_{i}_{task}" for i, task in enumerate(stages)):
+            if self.run.done(phase) is None:
+                raise RuntimeError(f"backward fine-tuning needs the forward phase {phase} of {self.run.root}; run "
+                                   f"seqdex pipeline first")
+        for m in range(1, self.config.iterations + 1):
             for i in range(len(stages) - 1, 0, -1):
                 bonus = self.transition_bonus(f"bonus_{m}_{stages[i]}", i)
                 previous = stages[i - 1]
                 buffer = self.run.buffer(stages[i - 2], previous) if i > 1 else None
-                self.train_stage(f"finetune_{m}_{previous}", i - 1, config.finetune_steps,
+                self.train_stage(f"finetune_{m}_{previous}", i - 1, self.config.finetune_steps,
                                  start_from=self.run.policy(previous), buffer_path=buffer, bonus=bonus)
-            for i in range(len(stages) - 1):  # Refresh forward initialization for the next pass.
-                if m < config.iterations:
+            if m < self.config.iterations:
+                for i in range(len(stages) - 1):
                     self.collect_buffer(f"buffer_{m}_{stages[i]}", i)
-        return self.evaluate_chained()
+
+    def adopt_forward(self, other: "Pipeline") -> None:
+        """Takes ``other``'s finished forward phase (policies, buffers, records) as this run's own: the chained
+        methods share Algorithm 1's forward phase, so a comparison may compute it once per seed."""
+        import shutil
+
+        for key in ("seed", "stage_steps", "transition_episodes", "episode_length_cap", "hidden_sizes",
+                    "num_envs", "backend", "history"):
+            if getattr(other.config, key) != getattr(self.config, key):
+                raise ValueError(f"cannot share a forward phase across runs that differ in {key}")
+        for name in ("stages", "buffers"):
+            if (other.run.root / name).is_dir():
+                shutil.copytree(other.run.root / name, self.run.root / name, dirs_exist_ok=True)
+        for phase, outcome in other.run.record["done"].items():
+            if phase.startswith(("forward_", "buffer_0_")):
+                self.run.finish(phase, dict(outcome, shared_from=str(other.run.root)))
 
     def evaluate_chained(self) -> dict:
         envs, policies = self.stage_envs(), self.policies()
@@ -285,7 +369,9 @@ class Pipeline:
 
         start = time.perf_counter()
         if self.config.method in CHAINED_METHODS:
-            evaluation = self.run_chained()
+            self.forward()
+            self.backward()
+            evaluation = self.evaluate_chained()
         else:
             evaluation = run_single_policy(self)
         phases = self.run.record["done"]

@@ -6,7 +6,9 @@ A pipeline run lives in one directory::
     stages/<task>/last.pt         the chain's current policy for each stage (what a chain controller loads)
     phases/<phase>/               each PPO phase's own run directory (TensorBoard, last.pt, best.pt)
     buffers/<a>_to_<b>.npz        forward initialization: pi_a's successful terminal states, rho_b
-    feasibility/<task>.pt         F^i for stage <task> (predicts its return from the previous stage's history)
+    transitions/<task>.npz        the previous stage's terminal histories (H = 15) with <task>'s returns
+    feasibility/<task>.pt         F^i for stage <task> (predicts its return from the previous stage's history);
+                                  <task>_h<H>.pt: the history ablation's F's (seqdex feasibility --history H)
     tstar/<task>.pt               T-STAR's discriminator for the hand-over into <task>
     results.json                  the evaluation
 
@@ -168,6 +170,9 @@ class RunDirectory:
 
     def feasibility(self, task: str) -> Path:
         return self.root / "feasibility" / f"{task}.pt"
+
+    def transitions(self, task: str) -> Path:
+        return self.root / "transitions" / f"{task}.npz"
 
     def tstar(self, task: str) -> Path:
         return self.root / "tstar" / f"{task}.pt"

@@ -13,6 +13,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from seqdex_drake.chaining.feasibility import pad_history
+from seqdex_drake.systems.switcher import walk_back
 
 Policy = Callable[[np.ndarray], np.ndarray]
 
@@ -143,8 +144,9 @@ def run_chain(envs: Sequence, policies: Sequence[Policy], seed: int, feasibility
     (plain sequential execution). Otherwise the paper's switcher runs: in stage i, once the next stage's score
     c^{i+1} = F^{i+1}/h^{i+1} exceeds 1 (or stage i's budget runs out), the stages are visited from the last
     back to the second and the first with c > 1 runs next (a bypass if it is beyond i+1); if none qualifies the
-    chain restarts with stage 0 from the current state. Each selection other than i+1 uses up one switch; with
-    none left the order is sequential. ``feasibility[j-1]`` is F^j (objects with ``.model`` and ``.threshold``,
+    chain restarts with stage 0 from the current state (:func:`~seqdex_drake.systems.switcher.walk_back`, the
+    rule the chain controller's switcher uses). Each selection other than i+1 uses up one switch; with none left
+    the order is sequential. The last stage's budget (or a failure) ends the episode. ``feasibility[j-1]`` is F^j (objects with ``.model`` and ``.threshold``,
     e.g. :class:`~seqdex_drake.chaining.feasibility_io.FeasibilityFile`; None for a missing one).
     """
     switching = max_switches > 0 and feasibility is not None
@@ -170,7 +172,7 @@ def run_chain(envs: Sequence, policies: Sequence[Policy], seed: int, feasibility
         following = stage + 1
         if switching and switches < max_switches:
             scores = _scores(feasibility, pad_history(result.observations, history))
-            chosen = next((j for j in range(last, 0, -1) if scores[j] > 1.0), 0)
+            chosen = walk_back(scores)
             if chosen != following:
                 switches += 1
             following = chosen

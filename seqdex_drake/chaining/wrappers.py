@@ -38,17 +38,20 @@ class InitialStateVectorEnv(_Wrapper):
         env: the vector env of the buffer's target task.
         buffer: a :class:`~seqdex_drake.chaining.terminal_buffer.TerminalBuffer` with at least one success.
         seed: seed of the state draws (``np.random.default_rng``).
-        state_type: the class the buffer's states are rebuilt as (the env's state class).
+        state_type: the class the buffer's states are rebuilt as (default: the sub-task env's ``EnvState``).
         successful_only: draw only successful entries (default); False also draws failed ones (test runs).
     """
 
-    def __init__(self, env, buffer, seed: int, state_type: type, successful_only: bool = True):
+    def __init__(self, env, buffer, seed: int, state_type: type | None = None, successful_only: bool = True):
         super().__init__(env)
+        if state_type is None:
+            from seqdex_drake.envs.subtask_env import EnvState as state_type
         self.buffer, self.state_type, self.successful_only = buffer, state_type, successful_only
         self.rng = np.random.default_rng(seed)
 
     def _options(self) -> dict:
-        return {"initial_state": self.buffer.sample(self.rng, self.state_type, successful_only=self.successful_only).state}
+        entry = self.buffer.sample(self.rng, self.state_type, successful_only=self.successful_only)
+        return {"initial_state": entry.state}
 
     def reset(self, seed: int | None = None, options=None):
         """Resets every env from a freshly drawn buffer state (``options`` is ignored)."""

@@ -15,14 +15,13 @@ import json
 from seqdex_drake.tasks.registry import observation_spec  # noqa: F401 (re-exported for the subcommands)
 
 
-
 def _chain_links() -> dict[str, str]:
     from seqdex_drake.chaining.chain import ChainNames, LoadChain
 
     links = {}
     for name in ChainNames():
         stages = LoadChain(name).stages
-        links.update(zip(stages, stages[1:]))
+        links.update(zip(stages, stages[1:], strict=False))
     return links
 
 

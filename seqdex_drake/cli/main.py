@@ -4,6 +4,10 @@ Subcommands (each takes ``--run-dir``, ``--seed``, ``--resume`` and ``--test``):
 
     seqdex train --task grasp [--steps N] [--num-envs 2] [--initial-states BUFFER]
     seqdex collect --task grasp --checkpoint RUN/last.pt --episodes N --out BUFFER [--keep-failures]
+    seqdex pipeline --chain handover --method seqdex|seqdex_no_temporal|policy_seq|tstar|vchain|scratch|curriculum
+    seqdex feasibility --run-dir RUN --task lower [--history H] [--no-temporal]
+    seqdex finetune --run-dir RUN
+    seqdex evaluate --task building_blocks|tool_positioning --run-dir RUN
 
 ``--test`` runs a tiny budget (episodes of a few steps, small networks, one PPO update, two collected
 episodes) for smoke tests and CI. Bad input exits with status 2 and a one-line message (no traceback); see
@@ -28,7 +32,7 @@ def _common(parser: argparse.ArgumentParser, tasks: list[str], resume_help: str)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``seqdex`` argument parser with its ``train`` and ``collect`` subcommands."""
+    """The ``seqdex`` argument parser with its subcommands."""
     from seqdex_drake.tasks.registry import task_names
 
     tasks = task_names()
@@ -52,6 +56,11 @@ def build_parser() -> argparse.ArgumentParser:
     collect.add_argument("--episodes", type=int, help="episodes to roll out (default: 100; 2 with --test)")
     collect.add_argument("--out", help="the buffer file (default: <run-dir>/terminal_<task>_to_<next>.npz)")
     collect.add_argument("--keep-failures", action="store_true", help="also record unsuccessful episodes")
+
+    from seqdex_drake.cli import evaluate, pipeline
+
+    pipeline.add_parsers(commands)
+    evaluate.add_parser(commands)
     return parser
 
 
@@ -67,8 +76,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.command == "train":
         from seqdex_drake.cli.train import run
-    else:
+    elif args.command == "collect":
         from seqdex_drake.cli.collect import run
+    elif args.command == "evaluate":
+        from seqdex_drake.cli.evaluate import run
+    else:
+        from seqdex_drake.cli import pipeline
+
+        run = {"pipeline": pipeline.run_pipeline, "feasibility": pipeline.run_feasibility,
+               "finetune": pipeline.run_finetune}[args.command]
     try:
         return run(args)
     except CliError as error:

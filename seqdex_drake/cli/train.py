@@ -20,55 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
+from seqdex_drake.chaining.wrappers import InitialStateVectorEnv  # noqa: F401 (also imported from here by tests)
 from seqdex_drake.cli import PREVIOUS_TASK, CliError, config_dict, task_config
 
 #: Network widths under ``--test`` (the paper's 1024-1024-512 MLPs are needlessly slow for a smoke run).
 TEST_HIDDEN_SIZES = (64, 64)
-
-
-class InitialStateVectorEnv:
-    """A vector env whose episodes all start from states drawn from a terminal buffer.
-
-    The wrapped :class:`~seqdex_drake.envs.vector.ProcessVectorEnv` autoresets a finished episode with the
-    task's own reset; this wrapper then resets that env again from a buffer state (the observation returned
-    for it is the new episode's first one). The states are drawn with ``np.random.default_rng(seed)``.
-
-    Args:
-        env: the process vector env of the target task.
-        buffer: a terminal buffer whose target task is the env's task, with at least one successful entry.
-        seed: seed of the state draws.
-    """
-
-    def __init__(self, env, buffer, seed: int):
-        from seqdex_drake.envs.subtask_env import EnvState
-
-        self.env, self.buffer, self._state_type = env, buffer, EnvState
-        self.rng = np.random.default_rng(seed)
-        self.single_observation_space = env.single_observation_space
-        self.single_action_space = env.single_action_space
-
-    def __len__(self) -> int:
-        return len(self.env)
-
-    def _options(self) -> dict:
-        return {"initial_state": self.buffer.sample(self.rng, self._state_type, successful_only=True).state}
-
-    def reset(self, seed: int | None = None, options=None):
-        """Resets every env from a freshly drawn buffer state (``options`` is ignored)."""
-        return self.env.reset(seed=seed, options=[self._options() for _ in range(len(self.env))])
-
-    def step(self, actions):
-        """Steps the wrapped env; envs whose episode ended restart from a buffer state."""
-        observations, rewards, terminated, truncated, infos = self.env.step(actions)
-        for index in np.flatnonzero(terminated | truncated):
-            # ProcessVectorEnv has no public single-env reset: send its worker the same "reset" message that
-            # ProcessVectorEnv.reset sends, to this worker only.
-            self.env._send(int(index), "reset", (None, self._options()))
-            observations[index], infos[index]["reset_info"] = self.env._gather([int(index)])[0]
-        return observations, rewards, terminated, truncated, infos
-
-    def close(self) -> None:
-        self.env.close()
 
 
 def load_initial_states(path: str, task: str):
@@ -140,6 +96,7 @@ def _saved_run(args, run_dir: Path, config) -> dict:
 
 def run(args) -> int:
     """Runs ``seqdex train`` with the parsed ``args``; returns the exit code."""
+    from seqdex_drake.envs.subtask_env import EnvState
     from seqdex_drake.envs.vector import ProcessVectorEnv
     from seqdex_drake.rl.checkpoint import CheckpointError
     from seqdex_drake.rl.ppo import PPO
@@ -169,7 +126,7 @@ def run(args) -> int:
     try:
         if buffer is not None:
             _check_state_layout(vec_env, buffer)
-            vec_env = InitialStateVectorEnv(vec_env, buffer, ppo_config.seed)
+            vec_env = InitialStateVectorEnv(vec_env, buffer, ppo_config.seed, EnvState)
         if ppo is None:
             ppo = PPO.for_env(ppo_config, vec_env)
         elif ppo.obs_dim != vec_env.single_observation_space.shape[0]:

@@ -39,6 +39,8 @@ class EnvState:
     previous_action: np.ndarray
     task: str = ""
     """The sub-task that saved the state (a different one means a hand-off)."""
+    arm_velocity_target: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(7))
+    """The arm's desired joint velocities (the wrist command's feed-forward; zero at rest)."""
 
 
 class SubtaskEnv(gym.Env):
@@ -94,6 +96,7 @@ class SubtaskEnv(gym.Env):
         self.goal = np.array([0, 0, 0, 1.0, 0, 0, 0])
         self._steps = 0
         self._arm_target = np.asarray(self.scenario.robot.arm_home, dtype=float)
+        self._arm_velocity_target = np.zeros(7)
         self._hand_target = np.array(ALLEGRO_OPEN_Q)
         self._previous_action = np.zeros(ACTION_SIZE)
         self.randomizer = DomainRandomizer(self, self.config.randomization)  # DR hook (envs/randomization.py)
@@ -157,7 +160,7 @@ class SubtaskEnv(gym.Env):
         return EnvState(self.plant.GetPositions(self.plant_context).copy(),
                         self.plant.GetVelocities(self.plant_context).copy(), self.objects.get_state(self.context),
                         self.target_object, self.goal.copy(), self._arm_target.copy(), self._hand_target.copy(),
-                        self._previous_action.copy(), self.config.name)
+                        self._previous_action.copy(), self.config.name, self._arm_velocity_target.copy())
 
     def set_state(self, state: EnvState) -> None:
         """Restores a saved state exactly (a few state writes; no re-simulation)."""
@@ -166,15 +169,18 @@ class SubtaskEnv(gym.Env):
         self.objects.set_state(self.context, state.objects)
         self.set_target(state.target_object, state.goal)
         self._hand_target = np.array(state.hand_target)
-        self._set_sources(np.array(state.arm_target), self._hand_target, np.array(state.previous_action))
+        self._set_sources(np.array(state.arm_target), self._hand_target, np.array(state.previous_action),
+                          np.array(state.arm_velocity_target))
 
-    def _set_sources(self, arm_q, hand_q, previous_action) -> None:
+    def _set_sources(self, arm_q, hand_q, previous_action, arm_v=None) -> None:
+        arm_v = np.zeros(7) if arm_v is None else np.asarray(arm_v, dtype=float)
         for source, context, value in zip((self._arm_source, self._hand_source, self._action_source),
-                                          self._source_contexts, (np.concatenate([arm_q, np.zeros(7)]),
+                                          self._source_contexts, (np.concatenate([arm_q, arm_v]),
                                                                   np.concatenate([hand_q, np.zeros(16)]),
                                                                   previous_action), strict=True):
             source.get_mutable_source_value(context).SetFromVector(value)
         self._arm_target = np.array(arm_q, dtype=float)
+        self._arm_velocity_target = arm_v
         self._previous_action = np.array(previous_action, dtype=float)
 
     def observation(self) -> np.ndarray:
@@ -212,7 +218,10 @@ class SubtaskEnv(gym.Env):
         # PD controller sags a little, and re-targeting from the measurement would turn that sag into drift.
         p_WC = self.ik.palm_pose(self._arm_target).translation() + self.config.wrist_step * action[16:]
         arm_target = self.ik.step(self._arm_target, p_WC, self.R_WP_hold)
-        self._set_sources(arm_target, self._hand_target, action)
+        # The target moves at (arm_target - previous target) / period: feed that velocity forward, or the arm's
+        # heavily damped PD (kd / kp = 0.2 s) would trail a moving wrist command by centimetres.
+        arm_v = (arm_target - self._arm_target) / self.scenario.control_period
+        self._set_sources(arm_target, self._hand_target, action, arm_v)
         info = {"nan_action": False, "simulator_error": False}
         try:
             self.simulator.AdvanceTo(self.context.get_time() + self.scenario.control_period)

@@ -17,7 +17,8 @@ def default_config() -> TaskConfig:
     return TaskConfig(
         name="reach", scenario="handover/reach", episode_length=30, ema=1.0,
         reward=RewardWeights(progress=1.0, action=-0.001, torque=0.0, alpha0=20.0),
-        object_types=[1], success_threshold=[0.015],  # [horizontal distance of the hand centre to the block (m)]
+        # success_threshold: [horizontal distance of the hand centre to the block's centre (m)]
+        object_types=[1], success_threshold=[0.015],
         drop_height=0.3)
 
 

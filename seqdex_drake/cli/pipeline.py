@@ -1,0 +1,157 @@
+"""``seqdex pipeline``, ``seqdex feasibility`` and ``seqdex finetune``: the bi-directional pipeline for a chain.
+
+    seqdex pipeline --chain handover --method seqdex [--stage-steps N] [--finetune-steps N] [--iterations M]
+    seqdex feasibility --run-dir RUN --task lower [--history H] [--no-temporal]
+    seqdex finetune --run-dir RUN
+
+``pipeline`` runs a whole method (:mod:`seqdex_drake.chaining.pipeline`): forward initialization, backward
+fine-tuning and the evaluation, or a baseline on the same phases and budget; ``--resume`` continues an
+interrupted run where it stopped. ``feasibility`` (re)trains F for one stage of a run from its saved
+transitions (collecting them first if needed), e.g. for the history ablation (``--history 0/5/10/15`` writes
+``feasibility/<task>_h<H>.pt``). ``finetune`` runs the backward passes of a run whose forward phase is done.
+"""
+
+import sys
+from pathlib import Path
+
+from seqdex_drake.cli import CliError
+
+METHOD_HELP = ("seqdex (ours), seqdex_no_temporal (F without history), policy_seq (forward only), tstar "
+               "(discriminator reward), vchain (next policy's critic as F), scratch (one PPO over the chain), "
+               "curriculum (one PPO, start moved backward)")
+
+
+def add_parsers(commands) -> None:
+    """Adds ``pipeline``, ``feasibility`` and ``finetune`` to the argparse subparsers object ``commands``."""
+    from seqdex_drake.chaining.chain import ChainNames
+    from seqdex_drake.chaining.pipeline import METHODS
+
+    pipeline = commands.add_parser("pipeline", help="run a whole chaining method (forward, backward, evaluation)",
+                                   description="Forward initialization, backward fine-tuning and evaluation of a "
+                                   "chain, or a baseline on the same budget. " + METHOD_HELP)
+    pipeline.add_argument("--chain", required=True, choices=ChainNames(), metavar="CHAIN",
+                          help=f"the chain: {', '.join(ChainNames())} (diagrams/chains.yaml)")
+    pipeline.add_argument("--method", default="seqdex", choices=METHODS, metavar="METHOD", help=METHOD_HELP)
+    pipeline.add_argument("--stage-steps", type=int, help="PPO steps per stage, forward phase")
+    pipeline.add_argument("--finetune-steps", type=int, help="PPO steps per backward fine-tuning step")
+    pipeline.add_argument("--iterations", type=int, help="M, the forward/backward passes (default 1)")
+    pipeline.add_argument("--transition-episodes", type=int, help="rollouts per hand-over for buffers and F")
+    pipeline.add_argument("--eval-episodes", type=int, help="chain episodes of the final evaluation")
+    pipeline.add_argument("--lambda2", type=float, help="weight of the transition bonus (lambda1 is 1)")
+    pipeline.add_argument("--backend", choices=["process", "serial"], help="vector env of the PPO phases")
+    _common(pipeline, "continue the run in --run-dir where it stopped (same flags)")
+
+    feasibility = commands.add_parser("feasibility", help="train a stage's transition feasibility function",
+                                      description="Trains F for one stage of a pipeline run from the previous "
+                                      "stage's terminal histories and this stage's returns.")
+    feasibility.add_argument("--task", required=True, help="the stage whose F to train (not the first)")
+    feasibility.add_argument("--history", type=int, default=10, help="H, observations per input (default 10)")
+    feasibility.add_argument("--no-temporal", action="store_true", help="the MLP on the last observation")
+    feasibility.add_argument("--out", help="output file (default: feasibility/<task>.pt for H = 10, else "
+                             "feasibility/<task>_h<H>.pt)")
+    _common(feasibility, "reuse the run's saved transitions (always done when present)", run_dir_required=True)
+
+    finetune = commands.add_parser("finetune", help="backward fine-tuning of a run whose forward phase is done",
+                                   description="Algorithm 1's backward passes: for i = K..2 fine-tune pi_{i-1} "
+                                   "with lambda1 R + lambda2 F^i, then evaluate.")
+    _common(finetune, "continue an interrupted fine-tuning", run_dir_required=True)
+
+
+def _common(parser, resume_help: str, run_dir_required: bool = False) -> None:
+    parser.add_argument("--run-dir", required=run_dir_required,
+                        help="the pipeline run directory" + ("" if run_dir_required else
+                                                              " (default: runs/<chain>_<method>_s<seed>)"))
+    parser.add_argument("--seed", type=int, default=0, help="seed of the run (default: 0)")
+    parser.add_argument("--resume", action="store_true", help=resume_help)
+    parser.add_argument("--test", action="store_true", help="a tiny budget for smoke tests and CI")
+
+
+def _log(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def _summary(results: dict) -> str:
+    switcher = results.get("success_rate_switcher")
+    extra = "" if switcher is None else f", with the switcher {switcher:.3f}"
+    return (f"{results['method']} on {results['chain']}: chain success {results['success_rate']:.3f}{extra} over "
+            f"{results['evaluation']['sequential']['episodes']} episodes; {results['ppo_steps']} PPO steps, "
+            f"{results['wall_clock_s']:.0f} s")
+
+
+def run_pipeline(args) -> int:
+    from seqdex_drake.chaining.bidirectional import Pipeline
+    from seqdex_drake.chaining.chain import ChainError, LoadChain
+    from seqdex_drake.chaining.pipeline import PipelineConfig, PipelineError
+    from seqdex_drake.tasks.registry import task_names
+
+    overrides = {key: value for key, value in (
+        ("stage_steps", args.stage_steps), ("finetune_steps", args.finetune_steps), ("iterations", args.iterations),
+        ("transition_episodes", args.transition_episodes), ("eval_episodes", args.eval_episodes),
+        ("lambda2", args.lambda2), ("backend", args.backend)) if value is not None}
+    for key, value in overrides.items():
+        if key != "backend" and key != "lambda2" and value < 1:
+            raise CliError(f"--{key.replace('_', '-')} must be >= 1, got {value}")
+    try:
+        chain = LoadChain(args.chain, valid_tasks=task_names())
+        make = PipelineConfig.tiny if args.test else PipelineConfig
+        config = make(chain=args.chain, method=args.method, seed=args.seed, **overrides)
+        run_dir = Path(args.run_dir or f"runs/{args.chain}_{args.method}_s{args.seed}")
+        pipeline = Pipeline(chain, config, run_dir, resume=args.resume, progress=sys.stderr.isatty(), log=_log)
+        results = pipeline.execute()
+    except (ChainError, PipelineError, FileNotFoundError) as error:
+        raise CliError(str(error)) from error
+    except RuntimeError as error:  # A phase that cannot go on (no success to hand over, ...): not bad input.
+        raise CliError(str(error), code=1) from error
+    print(f"seqdex pipeline: {_summary(results)}; results in {run_dir / 'results.json'}")
+    return 0
+
+
+def _open(args):
+    from seqdex_drake.chaining.bidirectional import Pipeline
+    from seqdex_drake.chaining.chain import ChainError
+    from seqdex_drake.chaining.pipeline import PipelineError
+
+    try:
+        return Pipeline.open(args.run_dir, progress=sys.stderr.isatty(), log=_log)
+    except (ChainError, PipelineError) as error:
+        raise CliError(str(error)) from error
+
+
+def run_feasibility(args) -> int:
+    pipeline = _open(args)
+    if args.task not in pipeline.stages:
+        raise CliError(f"{args.task} is not a stage of the run's chain ({' -> '.join(pipeline.stages)})")
+    index = pipeline.stages.index(args.task)
+    if index == 0:
+        raise CliError(f"{args.task} is the chain's first stage: no F^1 exists (F^i scores hand-overs into stage i)")
+    if not 0 <= args.history <= 15:
+        raise CliError(f"--history must be in 0..15 (the saved transitions hold 15 steps), got {args.history}")
+    for task in pipeline.stages[:index + 1]:
+        if not pipeline.run.policy(task).is_file():
+            raise CliError(f"{pipeline.run.policy(task)} is missing; run seqdex pipeline on {args.run_dir} first")
+    try:
+        if not pipeline.run.transitions(args.task).is_file():
+            pipeline.collect_transition_data(f"transitions_cli_{args.task}", index)
+        temporal = not args.no_temporal and args.history > 0
+        default = pipeline.run.feasibility(args.task)
+        out = Path(args.out) if args.out else (default if temporal and args.history == 10 else
+                                                default.with_name(f"{args.task}_h{args.history if temporal else 0}.pt"))
+        outcome = pipeline.fit_feasibility(index, args.history, temporal, out)
+    except RuntimeError as error:
+        raise CliError(str(error), code=1) from error
+    print(f"seqdex feasibility: F for {args.task} (H = {outcome['history']}, {'attention' if temporal else 'MLP'}), "
+          f"h = {outcome['threshold']:.4g}, validation R^2 {outcome['val_r2']:.3f}; wrote {out}")
+    return 0
+
+
+def run_finetune(args) -> int:
+    pipeline = _open(args)
+    if pipeline.config.method not in ("seqdex", "seqdex_no_temporal", "policy_seq", "tstar", "vchain"):
+        raise CliError(f"the run in {args.run_dir} is a {pipeline.config.method} run: it has no stages to fine-tune")
+    try:
+        pipeline.backward()  # Refuses a run whose forward phase is not done.
+        results = pipeline.execute()  # Everything done is skipped: this evaluates and writes results.json.
+    except RuntimeError as error:
+        raise CliError(str(error), code=1) from error
+    print(f"seqdex finetune: {_summary(results)}")
+    return 0

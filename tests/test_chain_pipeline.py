@@ -1,0 +1,122 @@
+"""The bi-directional pipeline end to end on the hand-over chain: every method under ``--test`` (a tiny budget),
+resume, the feasibility and finetune subcommands, the chain env, and bad input. Everything runs in this process
+(the serial backend), so the stations are built once and shared by all runs."""
+
+import json
+
+import numpy as np
+import pytest
+
+from seqdex_drake.chaining.pipeline import METHODS, pipeline_budget
+from seqdex_drake.cli.main import main
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """Every method's ``seqdex pipeline --test`` run directory."""
+    root = tmp_path_factory.mktemp("pipelines")
+    for method in METHODS:
+        code = main(["pipeline", "--chain", "handover", "--method", method, "--test", "--run-dir",
+                     str(root / method)])
+        assert code == 0, method
+    return root
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_every_method_runs_end_to_end_on_the_same_budget(runs, method):
+    results = json.loads((runs / method / "results.json").read_text())
+    assert results["method"] == method and results["stages"] == ["reach", "lower"]
+    assert results["ppo_steps"] == results["ppo_budget"] == 2 * 64 + 32  # K stage_steps + (K-1) finetune_steps
+    assert 0.0 <= results["success_rate"] <= 1.0
+    phases = results["phases"]
+    if method in ("scratch", "curriculum"):
+        assert not (runs / method / "stages").exists()  # One policy over the whole chain.
+        assert sum(p["steps"] for p in phases.values()) == results["ppo_budget"]
+        if method == "curriculum":
+            assert [p["start_stage"] for p in phases.values()] == [1, 0]  # From the last stage back.
+    else:
+        for task in ("reach", "lower"):
+            assert (runs / method / "stages" / task / "last.pt").is_file()
+        assert (runs / method / "buffers" / "reach_to_lower.npz").is_file()
+        assert "finetune_1_reach" in phases
+    if method in ("seqdex", "seqdex_no_temporal"):
+        from seqdex_drake.chaining.feasibility_io import load_feasibility
+
+        f = load_feasibility(runs / method / "feasibility" / "lower.pt")
+        assert f.source_task == "reach" and f.target_task == "lower" and f.threshold > 0
+        assert f.config.temporal == (method == "seqdex")
+        assert results["success_rate_switcher"] is not None
+    if method == "tstar":
+        assert (runs / method / "tstar" / "lower.pt").is_file()
+
+
+def test_resume_skips_finished_phases_and_reproduces_the_results(runs, capsys):
+    before = json.loads((runs / "seqdex" / "results.json").read_text())
+    assert main(["pipeline", "--chain", "handover", "--method", "seqdex", "--test", "--resume", "--run-dir",
+                 str(runs / "seqdex")]) == 0
+    after = json.loads((runs / "seqdex" / "results.json").read_text())
+    assert after["phases"] == before["phases"] and after["success_rate"] == before["success_rate"]
+    assert after["evaluation"] == before["evaluation"]
+
+
+def test_same_seed_gives_the_same_run(runs, tmp_path):
+    assert main(["pipeline", "--chain", "handover", "--method", "policy_seq", "--test", "--run-dir",
+                 str(tmp_path / "again")]) == 0
+    first = json.loads((runs / "policy_seq" / "results.json").read_text())
+    second = json.loads((tmp_path / "again" / "results.json").read_text())
+    assert first["evaluation"] == second["evaluation"]
+    for phase in ("forward_0_reach", "forward_1_lower", "finetune_1_reach"):
+        assert first["phases"][phase]["success_rate"] == second["phases"][phase]["success_rate"] or \
+            np.isnan(first["phases"][phase]["success_rate"])
+
+
+def test_feasibility_subcommand_writes_the_history_ablation(runs, capsys):
+    assert main(["feasibility", "--run-dir", str(runs / "seqdex"), "--task", "lower", "--history", "5"]) == 0
+    from seqdex_drake.chaining.feasibility_io import load_feasibility
+
+    assert load_feasibility(runs / "seqdex" / "feasibility" / "lower_h5.pt").config.history == 5
+    assert main(["feasibility", "--run-dir", str(runs / "seqdex"), "--task", "reach"]) == 2
+    assert "first stage" in capsys.readouterr().err
+
+
+def test_finetune_subcommand_continues_a_run(runs, capsys):
+    assert main(["finetune", "--run-dir", str(runs / "tstar")]) == 0
+    assert "chain success" in capsys.readouterr().out
+    assert main(["finetune", "--run-dir", str(runs / "scratch")]) == 2
+
+
+def test_bad_input(runs, tmp_path, capsys):
+    with pytest.raises(SystemExit) as error:  # argparse lists the valid chains and methods.
+        main(["pipeline", "--chain", "nope", "--test"])
+    assert error.value.code == 2
+    assert main(["pipeline", "--chain", "handover", "--test", "--run-dir", str(runs / "seqdex")]) == 2
+    assert "already holds a pipeline run" in capsys.readouterr().err
+    assert main(["pipeline", "--chain", "handover", "--method", "vchain", "--test", "--resume", "--run-dir",
+                 str(runs / "seqdex")]) == 2
+    assert "another configuration" in capsys.readouterr().err
+    assert main(["finetune", "--run-dir", str(tmp_path / "missing")]) == 2
+    assert "holds no pipeline run" in capsys.readouterr().err
+
+
+def test_budget_formula():
+    from seqdex_drake.chaining.pipeline import PipelineConfig
+
+    assert pipeline_budget(PipelineConfig(stage_steps=10, finetune_steps=3, iterations=2), 4) == 4 * 10 + 2 * 3 * 3
+
+
+def test_chain_env_hands_over_at_each_stage_budget():
+    from seqdex_drake.cli.main import main as _  # noqa: F401 (import order as in the CLI)
+    from seqdex_drake.envs.chain_env import ChainEnv
+
+    env = ChainEnv(["reach", "lower"])
+    observation, info = env.reset(seed=3)
+    assert observation.shape == (159 + 2,) and observation[159] == 1 and info["stage"] == 0
+    for step in range(1, 41):
+        observation, reward, terminated, truncated, info = env.step(np.zeros(19))
+        assert np.isfinite(reward) and not terminated
+        if step == 30:
+            assert info["handover"] and observation[160] == 1 and observation[159] == 0
+        assert truncated == (step == 40)
+    assert info["stage"] == 1 and isinstance(info["success"], bool)
+    observation, info = env.reset(seed=3, options={"start_stage": 1})
+    assert info["stage"] == 1 and observation[160] == 1

@@ -1,0 +1,145 @@
+"""Chain specs, the serial vector env, the chaining wrappers and the switcher rule of chain rollouts, on small
+hand-made envs (the Drake-backed pieces are covered in test_chain_pipeline.py)."""
+
+import dataclasses
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from seqdex_drake.chaining.chain import ChainError, ChainNames, LoadChain
+from seqdex_drake.chaining.rollouts import run_chain
+from seqdex_drake.chaining.wrappers import InitialStateVectorEnv, TransitionBonusVectorEnv
+from seqdex_drake.envs.serial import SerialVectorEnv
+from seqdex_drake.tasks.registry import task_names
+
+
+class CounterEnv(gym.Env):
+    """Observation [position, steps]; the action adds to the position; episodes last ``length`` steps; reward =
+    position; success when the position ends above ``goal``. Its state is (position, steps)."""
+
+    def __init__(self, length=3, goal=1.0):
+        self.config = dataclasses.make_dataclass("Config", [("episode_length", int)])(length)
+        self.goal = goal
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (2,), np.float32)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+        self.position, self.steps = 0.0, 0
+
+    def _obs(self):
+        return np.array([self.position, self.steps], np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        state = (options or {}).get("initial_state")
+        self.position = float(self.np_random.uniform(-0.1, 0.1)) if state is None else state[0]
+        self.steps = 0
+        return self._obs(), {"success": False}
+
+    def step(self, action):
+        self.position += float(np.asarray(action).reshape(-1)[0])
+        self.steps += 1
+        return (self._obs(), self.position, False, self.steps >= self.config.episode_length,
+                {"success": self.position > self.goal})
+
+    def get_state(self):
+        return (self.position, self.steps)
+
+
+def test_shipped_chains_load_and_name_registered_tasks():
+    assert {"building_blocks", "tool_positioning", "handover"} <= set(ChainNames())
+    chain = LoadChain("building_blocks", valid_tasks=task_names())
+    assert chain.stages == ["search", "orient", "grasp", "insert"]
+    assert chain.next_task("grasp") == "insert" and chain.previous_task("search") is None
+
+
+def test_chain_file_errors(tmp_path):
+    with pytest.raises(ChainError, match="unknown chain 'nope'.*handover"):
+        LoadChain("nope")
+    path = tmp_path / "chains.yaml"
+    path.write_text("short: {stages: [reach]}\ntypo: {stages: [reach, lowr]}\n")
+    with pytest.raises(ChainError, match="at least two"):
+        LoadChain("short", path)
+    with pytest.raises(ChainError, match="unknown stage.*lowr.*valid sub-tasks"):
+        LoadChain("typo", path, valid_tasks=task_names())
+    path.write_text("bad: {stagez: [reach, lower]}\n")
+    with pytest.raises(ChainError, match="stagez"):  # Unknown keys anywhere in the file are rejected.
+        LoadChain("bad", path)
+
+
+def test_serial_vector_env_autoresets_like_a_serial_env():
+    vec = SerialVectorEnv([lambda: CounterEnv(length=2)] * 2, seed=5)
+    reference = CounterEnv(length=2)
+    observations, _ = vec.reset()
+    first, _ = reference.reset(seed=6)
+    np.testing.assert_array_equal(observations[1], first)
+    vec.step(np.ones((2, 1)))
+    observations, rewards, terminated, truncated, infos = vec.step(np.ones((2, 1)))
+    assert truncated.all() and not terminated.any()
+    np.testing.assert_allclose(infos[1]["final_observation"], [first[0] + 2, 2])
+    assert infos[1]["episode"]["length"] == 2 and infos[1]["final_info"]["success"]
+    assert observations[1][1] == 0  # The new episode's first observation.
+
+
+def test_transition_bonus_is_paid_at_the_terminal_step_on_the_last_h_observations():
+    seen = []
+
+    def bonus(history):
+        seen.append(history.copy())
+        return 10.0
+
+    env = TransitionBonusVectorEnv(SerialVectorEnv([lambda: CounterEnv(length=3)], seed=0), bonus, lambda1=0.5,
+                                   lambda2=2.0, history=2)
+    env.reset()
+    rewards = [env.step(np.ones((1, 1)))[1][0] for _ in range(3)]
+    start = seen[0][0, 0] - 2  # The history ends with the final observation: positions start + 2, start + 3.
+    np.testing.assert_allclose(rewards[:2], [0.5 * (start + 1), 0.5 * (start + 2)])
+    np.testing.assert_allclose(rewards[2], 0.5 * (start + 3) + 2.0 * 10.0)
+    assert len(seen) == 1 and seen[0].shape == (2, 2)
+    np.testing.assert_allclose(seen[0][:, 1], [2, 3])  # steps 2 and 3: the terminal window.
+
+
+def test_initial_state_wrapper_restarts_every_episode_from_the_buffer():
+    class Buffer:
+        def sample(self, rng, state_type, successful_only=True):
+            return dataclasses.make_dataclass("Entry", [("state", tuple)])((5.0, 0))
+
+    env = InitialStateVectorEnv(SerialVectorEnv([lambda: CounterEnv(length=1)], seed=0), Buffer(), seed=0,
+                                state_type=tuple)
+    observations, _ = env.reset()
+    assert observations[0][0] == 5.0
+    observations, *_ = env.step(np.ones((1, 1)))
+    assert observations[0][0] == 5.0  # Reset again from the buffer, not from the env's own distribution.
+
+
+class ConstantF:
+    """A feasibility stand-in: F = value(history), threshold 1."""
+
+    def __init__(self, value):
+        self.threshold = 1.0
+        self.model = dataclasses.make_dataclass("M", [("obs_dim", int), ("predict", object)])(2, value)
+
+
+def test_run_chain_sequential_and_switcher_rules():
+    envs = [CounterEnv(length=3, goal=0.5), CounterEnv(length=3, goal=1.0), CounterEnv(length=3, goal=2.0)]
+    forward = [lambda obs: np.ones(1)] * 3
+    outcome = run_chain(envs, forward, seed=0)
+    assert outcome.stages_run == [0, 1, 2] and outcome.switches == 0 and outcome.steps == 9 and outcome.success
+
+    # F^2 says stage 1 is feasible once the position exceeds 1.5: the switcher hands over early (2 steps), and
+    # F^3 never qualifies, so after stage 1 the walk-back finds F^2 > 1 again (recovery to stage 1) until the cap.
+    feasibility = [ConstantF(lambda h: 2.0 if h[-1, 0] > 1.5 else 0.0), ConstantF(lambda h: 0.0)]
+    outcome = run_chain(envs, forward, seed=0, feasibility=feasibility, max_switches=2)
+    assert outcome.stages_run[:2] == [0, 1] and outcome.stages_run.count(1) == 3 and outcome.switches == 2
+    assert outcome.stages_run[-1] == 2  # With the switches used up, plain sequential order resumes.
+
+    # Bypass: F^3 > 1 right away sends stage 0 straight to the last stage (one switch).
+    bypass = [ConstantF(lambda h: 0.0), ConstantF(lambda h: 5.0)]
+    outcome = run_chain(envs, forward, seed=0, feasibility=bypass, max_switches=1)
+    assert outcome.stages_run == [0, 2] and outcome.switches == 1
+
+    # Restart: nothing is feasible, so each hand-over restarts stage 0 while switches last.
+    outcome = run_chain(envs, forward, seed=0, feasibility=[ConstantF(lambda h: 0.0)] * 2, max_switches=2)
+    assert outcome.stages_run == [0, 0, 0, 1, 2] and outcome.switches == 2
+
+    # max_switches = 0 ignores F entirely.
+    assert run_chain(envs, forward, seed=0, feasibility=bypass, max_switches=0).stages_run == [0, 1, 2]
