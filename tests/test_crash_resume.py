@@ -90,3 +90,39 @@ def test_resuming_without_the_env_state_does_not_match(tmp_path, uninterrupted):
     resumed = _records(tmp_path / "resumed.jsonl")
     assert resumed[0]["update"] == 3 and resumed[0]["global_step"] == uninterrupted[2]["global_step"]
     assert resumed[0]["metrics"]["losses/value"] != uninterrupted[2]["metrics"]["losses/value"]
+
+
+def _writer_blocked_mid_write(path: Path) -> subprocess.Popen:
+    """A process stuck inside ``atomic_write(path)`` after writing half a file (its temporary file exists)."""
+    code = ("import sys, time\nfrom seqdex_drake.atomic import atomic_write\n"
+            "def write(file):\n    file.write(b'half'); file.flush(); print('writing', flush=True); time.sleep(600)\n"
+            f"atomic_write({str(path)!r}, write)\n")
+    process = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    assert process.stdout.readline().strip() == "writing"
+    return process
+
+
+def _temporaries(path: Path) -> list[str]:
+    return sorted(name.name for name in path.parent.glob(f".{path.name}.*.tmp"))
+
+
+def test_a_killed_writers_temporary_file_is_removed_by_the_next_write(tmp_path):
+    from seqdex_drake.atomic import atomic_write
+
+    path = tmp_path / "last.pt"
+    atomic_write(path, lambda file: file.write(b"first"))
+    killed, alive = _writer_blocked_mid_write(path), _writer_blocked_mid_write(path)
+    try:
+        killed.kill()
+        killed.wait(timeout=30)
+        stale = [name for name in _temporaries(path) if f".{killed.pid}." in name]
+        assert len(stale) == 1 and len(_temporaries(path)) == 2  # SIGKILL leaves the temporary file behind.
+        assert path.read_bytes() == b"first"  # ... and the destination untouched.
+        atomic_write(path, lambda file: file.write(b"second"))
+        assert path.read_bytes() == b"second"
+        remaining = _temporaries(path)
+        assert len(remaining) == 1 and f".{alive.pid}." in remaining[0]  # A live writer's file is left alone.
+    finally:
+        for process in (killed, alive):
+            process.kill()
+            process.wait(timeout=30)
