@@ -149,6 +149,7 @@ PAPER_TASK_HYPERPARAMETERS: dict[str, dict[str, Any]] = {
 #: so that each stage learns in a few thousand steps on two CPU workers.
 HANDOVER_TASK_HYPERPARAMETERS: dict[str, dict[str, Any]] = {
     name: dict(actor_hidden_sizes=(128, 128), critic_hidden_sizes=(128, 128), num_envs=2, horizon=120,
-               num_minibatches=4, num_epochs=5, gamma=0.96, learning_rate=1e-3, checkpoint_every=10)
+               num_minibatches=4, num_epochs=5, gamma=0.96, learning_rate=5e-4, adaptive_lr=False,
+               checkpoint_every=10)
     for name in ("reach", "lower")
 }
