@@ -37,6 +37,8 @@ class PalmIK:
         self.orientation_weight = orientation_weight
         self.p_PalmC_Palm = np.asarray(p_PalmC_Palm, dtype=float)
         self._X_PalmC = RigidTransform(self.p_PalmC_Palm)
+        self._world = controller_plant.world_frame()
+        self._damping_eye = (damping, damping**2 * np.eye(6))  # Recomputed if ``damping`` is changed.
         self._last = (None, None)  # (q_arm, X_WC) of the last palm_pose call: the env asks twice per tick.
 
     def palm_pose(self, q_arm: np.ndarray) -> RigidTransform:
@@ -55,14 +57,16 @@ class PalmIK:
              max_step: float = 0.05) -> np.ndarray:
         """One DLS step: the joint positions moving the palm centre toward the target, within joint limits."""
         X_WPc = self.palm_pose(q_arm)
-        world = self.plant.world_frame()
         J = self.plant.CalcJacobianSpatialVelocity(self.context, JacobianWrtVariable.kQDot, self.palm,
-                                                   self.p_PalmC_Palm, world, world)
+                                                   self.p_PalmC_Palm, self._world, self._world)
         position_error = np.asarray(p_WC_target) - X_WPc.translation()
         rotation_error = (R_WP_target @ X_WPc.rotation().inverse()).ToAngleAxis()
-        error = np.r_[self.orientation_weight * rotation_error.angle() * rotation_error.axis(), position_error]
-        J = np.vstack([self.orientation_weight * J[:3], J[3:]])
-        dq = J.T @ np.linalg.solve(J @ J.T + self.damping**2 * np.eye(6), error)
+        error = np.concatenate([self.orientation_weight * rotation_error.angle() * rotation_error.axis(),
+                                position_error])
+        J = np.concatenate([self.orientation_weight * J[:3], J[3:]])
+        if self._damping_eye[0] != self.damping:
+            self._damping_eye = (self.damping, self.damping**2 * np.eye(6))
+        dq = J.T @ np.linalg.solve(J @ J.T + self._damping_eye[1], error)
         norm = np.linalg.norm(dq)
         if norm > max_step:
             dq *= max_step / norm

@@ -240,7 +240,7 @@ class SceneObjects:
             ticks = self._still_ticks.copy()
             self.set_frozen(root, (frozen & ~wake) | sleep)
             self._still_ticks = np.where(sleep, 0, ticks)
-        return [n for n, w in zip(self.names, wake, strict=True) if w]
+        return [self.names[i] for i in np.flatnonzero(wake)]
 
     def _touched(self, plant_context: Context, frozen: np.ndarray, moving: np.ndarray) -> np.ndarray:
         """Frozen objects in contact with the robot or with a moving object (the current state's contacts).
