@@ -6,9 +6,10 @@
 
 Per seed, Policy-Seq runs the whole pipeline first; ours (``seqdex``), ours w/o temporal, T-STAR and V-Chain
 then take its forward phase (Algorithm 1's forward initialization is the same for all five: trained reach,
-reach -> lower terminal buffer, lower trained from it) and run their own backward fine-tuning on the same
-budget; RL-scratch and Curriculum RL train one policy over the whole chain with the same total PPO budget. Every
-run is a ``seqdex pipeline`` run directory under ``--run-root`` (resumable: finished runs are read back, an
+reach -> lower terminal buffer, lower trained from it; ours w/o temporal and T-STAR also take ours' rollouts
+into lower, which come from those same policies) and run their own backward fine-tuning on the same budget;
+RL-scratch and Curriculum RL train one policy over the whole chain with the same total PPO budget. Every run is
+a ``seqdex pipeline`` run directory under ``--run-root`` (resumable: finished runs are read back, an
 interrupted one continues). Wall-clock per method includes the shared forward phase. Evaluation: chain success
 over ``--eval-episodes`` episodes with fixed per-stage time budgets (no switching), and for ours / ours w/o
 temporal also with the feasibility switcher (at most 3 switches).
@@ -50,19 +51,23 @@ def run_seed(args, seed: int) -> None:
     from seqdex_drake.chaining.chain import LoadChain
 
     chain = LoadChain("handover")
-    log = (lambda message: print(f"[seed {seed}] {message}", flush=True))
+
+    def log(message: str) -> None:
+        print(f"[seed {seed}] {message}", flush=True)
+
     directory = Path(args.run_root)
     pipelines = {}
     for method in ("policy_seq", *SHARED_FORWARD, "scratch", "curriculum"):
         run_dir = directory / f"{method}_s{seed}"
         if (run_dir / "results.json").is_file():
             log(f"{method}: done earlier")
-            pipelines[method] = Pipeline.open(run_dir, log=log) if method == "policy_seq" else None
+            pipelines[method] = Pipeline.open(run_dir, log=log) if method in ("policy_seq", "seqdex") else None
             continue
         resume = (run_dir / "pipeline.json").is_file()
         pipeline = Pipeline(chain, _config(args, method, seed), run_dir, resume=resume, log=log)
-        if method in SHARED_FORWARD and not resume:
-            pipeline.adopt_forward(pipelines["policy_seq"])
+        if method in SHARED_FORWARD and not resume:  # F's and D's data: the same forward policies' rollouts.
+            source = pipelines["seqdex"] if method in ("seqdex_no_temporal", "tstar") else pipelines["policy_seq"]
+            pipeline.adopt_forward(source)
         results = pipeline.execute()
         pipelines[method] = pipeline
         log(f"{method}: success {results['success_rate']:.3f} (switcher {results['success_rate_switcher']}), "

@@ -338,19 +338,21 @@ class Pipeline:
                     self.collect_buffer(f"buffer_{m}_{stages[i]}", i)
 
     def adopt_forward(self, other: "Pipeline") -> None:
-        """Takes ``other``'s finished forward phase (policies, buffers, records) as this run's own: the chained
-        methods share Algorithm 1's forward phase, so a comparison may compute it once per seed."""
+        """Takes ``other``'s finished forward phase (policies, buffers, records) and, if it has them, its first
+        transition rollouts as this run's own: the chained methods share Algorithm 1's forward phase, so a
+        comparison may compute it once per seed. Call before :meth:`execute`."""
         import shutil
 
         for key in ("seed", "stage_steps", "transition_episodes", "episode_length_cap", "hidden_sizes",
                     "num_envs", "backend", "history"):
             if getattr(other.config, key) != getattr(self.config, key):
                 raise ValueError(f"cannot share a forward phase across runs that differ in {key}")
-        for name in ("stages", "buffers"):
+        shared = ("forward_", "buffer_0_", "transitions_bonus_1_")  # The first backward pass's data comes from
+        for name in ("stages", "buffers", "transitions"):          # the forward policies: the same for all.
             if (other.run.root / name).is_dir():
                 shutil.copytree(other.run.root / name, self.run.root / name, dirs_exist_ok=True)
         for phase, outcome in other.run.record["done"].items():
-            if phase.startswith(("forward_", "buffer_0_")):
+            if phase.startswith(shared):
                 self.run.finish(phase, dict(outcome, shared_from=str(other.run.root)))
 
     def evaluate_chained(self) -> dict:

@@ -145,9 +145,10 @@ def run_chain(envs: Sequence, policies: Sequence[Policy], seed: int, feasibility
     c^{i+1} = F^{i+1}/h^{i+1} exceeds 1 (or stage i's budget runs out), the stages are visited from the last
     back to the second and the first with c > 1 runs next (a bypass if it is beyond i+1); if none qualifies the
     chain restarts with stage 0 from the current state (:func:`~seqdex_drake.systems.switcher.walk_back`, the
-    rule the chain controller's switcher uses). Each selection other than i+1 uses up one switch; with none left
-    the order is sequential. The last stage's budget (or a failure) ends the episode. ``feasibility[j-1]`` is F^j (objects with ``.model`` and ``.threshold``,
-    e.g. :class:`~seqdex_drake.chaining.feasibility_io.FeasibilityFile`; None for a missing one).
+    rule the chain controller's switcher uses). Each selection other than i+1 uses up one switch; with none
+    left the order is sequential. The last stage's budget (or a failure) ends the episode.
+    ``feasibility[j-1]`` is F^j (objects with ``.model`` and ``.threshold``, e.g. a
+    :class:`~seqdex_drake.chaining.feasibility_io.FeasibilityFile`; None for a missing one).
     """
     switching = max_switches > 0 and feasibility is not None
     last = len(envs) - 1

@@ -213,7 +213,8 @@ class SubtaskEnv(gym.Env):
             return self.observation(), 0.0, False, True, {"nan_action": True, "success": False}
         action = np.clip(self.randomizer.perturb_action(action), -1.0, 1.0)  # DR hook: action noise
         ema = self.config.ema
-        self._hand_target = ema * scale_action_to_limits(action[:16]) + (1 - ema) * self._hand_target
+        if self.config.hand_actions:
+            self._hand_target = ema * scale_action_to_limits(action[:16]) + (1 - ema) * self._hand_target
         # Integrate the wrist command from the previous *target*, not the measured arm: with a payload the
         # PD controller sags a little, and re-targeting from the measurement would turn that sag into drift.
         p_WC = self.ik.palm_pose(self._arm_target).translation() + self.config.wrist_step * action[16:]

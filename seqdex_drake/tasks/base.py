@@ -25,6 +25,9 @@ class TaskConfig:
     """Policy steps per episode (60 Hz); reaching it is a truncation."""
     ema: float = 1.0
     """EMA factor of the hand joint targets: target = ema * new + (1 - ema) * previous (1 = no smoothing)."""
+    hand_actions: bool = True
+    """False: the 16 hand entries of the action are ignored and the hand holds its targets (wrist-only tasks such
+    as the hand-over chain's)."""
     wrist_step: float = 0.005
     """Wrist (hand centre) translation per policy step at action 1 (m); 0.3 m/s at 60 Hz."""
     reward: RewardWeights = dataclasses.field(default_factory=RewardWeights)

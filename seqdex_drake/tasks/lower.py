@@ -16,8 +16,8 @@ from seqdex_drake.tasks.rewards import RewardWeights, penalties
 
 def default_config() -> TaskConfig:
     return TaskConfig(
-        name="lower", scenario="handover/lower", episode_length=10, ema=1.0,
-        reward=RewardWeights(progress=1.0, action=-0.001, torque=0.0, alpha0=20.0),
+        name="lower", scenario="handover/lower", episode_length=10, ema=1.0, hand_actions=False,
+        reward=RewardWeights(progress=1.0, action=0.0, torque=0.0, alpha0=20.0),
         # success_threshold: [distance to the goal point (m), goal height above the block's centre (m)]
         object_types=[1], success_threshold=[0.015, 0.10],
         drop_height=0.3)

@@ -15,8 +15,8 @@ from seqdex_drake.tasks.rewards import RewardWeights, penalties
 
 def default_config() -> TaskConfig:
     return TaskConfig(
-        name="reach", scenario="handover/reach", episode_length=30, ema=1.0,
-        reward=RewardWeights(progress=1.0, action=-0.001, torque=0.0, alpha0=20.0),
+        name="reach", scenario="handover/reach", episode_length=30, ema=1.0, hand_actions=False,
+        reward=RewardWeights(progress=1.0, action=0.0, torque=0.0, alpha0=20.0),
         # success_threshold: [horizontal distance of the hand centre to the block's centre (m)]
         object_types=[1], success_threshold=[0.015],
         drop_height=0.3)
