@@ -4,7 +4,8 @@ Single process, per registered sub-task: the env is reset (seed 0), stepped a fe
 state saved. From that state, ``env_steps_per_s`` times ``SubtaskEnv.step`` with zero actions (IK, observation,
 reward terms, wake check) for about ``--seconds``; then, from the same state, ``raw_steps_per_s`` times the same
 number of control periods with ``env.simulator.AdvanceTo`` alone, one call per period, the last targets held (no
-env code). Zero actions keep the targets where the warm-up left them, so both runs simulate nearly the same motion.
+env code). Zero actions keep the targets where the warm-up left them, so both runs simulate nearly the same motion
+(in Search not quite: the raw loop runs no wake check, so blocks the fingers disturb stay frozen and cheap there).
 The two alternate ``--repeats`` times and the best of each is kept (other processes may load the CPU).
 ``raw_with_tactile_solve_steps_per_s`` adds to the raw loop only the discrete contact solve that the motor-tactile
 observation (the hand's net actuation at the new state, with the targets then replaced by the next action's)
