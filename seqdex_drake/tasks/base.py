@@ -28,6 +28,8 @@ class TaskConfig:
     hand_actions: bool = True
     """False: the 16 hand entries of the action are ignored and the hand holds its targets (wrist-only tasks such
     as the hand-over chain's)."""
+    wrist_floor: float = 0.0
+    """Lowest world height (m) the wrist command may take the hand centre to (a workspace limit; 0: none)."""
     wrist_step: float = 0.005
     """Wrist (hand centre) translation per policy step at action 1 (m); 0.3 m/s at 60 Hz."""
     reward: RewardWeights = dataclasses.field(default_factory=RewardWeights)

@@ -7,7 +7,8 @@ x-y only, whatever its height; Lower must then bring it to a point just above th
 which only works when Reach left the hand low enough. Forward initialization alone (Policy-Seq) inherits
 Reach's arbitrary heights; backward fine-tuning with the feasibility function teaches Reach to end low.
 
-The hand centre (``p_PalmHc_Palm``) is the point the wrist action moves; heights are above the block's centre.
+The hand centre (``p_PalmHc_Palm``) is the point the wrist action moves; heights are above the block's frame
+origin (its bottom face, on the table). Only the wrist acts (``hand_actions=False``: the hand stays open).
 """
 
 import numpy as np
@@ -20,6 +21,9 @@ TABLE_XY_CENTER = np.array([0.37, 0.08])
 TABLE_XY_HALF = np.array([0.04, 0.04])
 #: The table top's height in the ``handover`` scene (models/fixtures_table.dmd.yaml).
 TABLE_TOP = 0.6
+#: The wrist command keeps the hand centre at least this high (7 cm above the table, where the block's frame
+#: sits): lower, the fingers would catch on the table and the block, and friction would pin the hand.
+WRIST_FLOOR = TABLE_TOP + 0.07
 
 
 def hand_center(env) -> np.ndarray:

@@ -1,30 +1,31 @@
 """Lower (hand-over chain, stage 2): bring the hand centre to a point just above the block in a few steps.
 
-Reset (standalone): the hand centre within 1.5 cm of the block's vertical line (Reach's success) at a height
-of 12-26 cm above its centre, as Reach leaves it. From a hand-over, Reach's terminal state. The goal point is
-10 cm above the block's centre; the episode is 10 steps of at most 5 mm, so starts more than about 6.5 cm
-above the goal height cannot succeed. Reward: lambda1 exp(-alpha0 d) + penalties, d the distance from the
-hand centre to the goal point. Success (at the episode's end): d < 0.015 m.
+Reset (standalone): the hand centre within 1.5 cm (per axis) of the block's vertical line (Reach's success) at a height of
+12-26 cm above the block. From a hand-over, Reach's terminal state. The goal point is 10 cm above the block
+(its frame, on the table); the episode is 10 steps of at most 5 mm, so starts more than about 7 cm above the
+goal cannot succeed. Reward: lambda1 exp(-alpha0 d), d the distance from the hand centre to the goal point (the
+action and torque penalties have zero weight: only the wrist acts). Success (at the episode's end): d < 0.02 m.
 """
 
 import numpy as np
 
 from seqdex_drake.tasks.base import Task, TaskConfig
-from seqdex_drake.tasks.handover_common import hand_center, place_block_and_hand
+from seqdex_drake.tasks.handover_common import WRIST_FLOOR, hand_center, place_block_and_hand
 from seqdex_drake.tasks.rewards import RewardWeights, penalties
 
 
 def default_config() -> TaskConfig:
     return TaskConfig(
-        name="lower", scenario="handover/lower", episode_length=10, ema=1.0, hand_actions=False,
+        name="lower", scenario="handover/lower", episode_length=10, ema=1.0,
+        hand_actions=False, wrist_floor=WRIST_FLOOR,
         reward=RewardWeights(progress=1.0, action=0.0, torque=0.0, alpha0=20.0),
-        # success_threshold: [distance to the goal point (m), goal height above the block's centre (m)]
-        object_types=[1], success_threshold=[0.015, 0.10],
+        # success_threshold: [distance to the goal point (m), goal height above the block (m)]
+        object_types=[1], success_threshold=[0.02, 0.10],
         drop_height=0.3)
 
 
-#: Standalone start offsets of the hand centre from the block's centre (m): [low, high] per axis.
-START_LOW, START_HIGH = np.array([-0.01, -0.01, 0.12]), np.array([0.01, 0.01, 0.26])
+#: Standalone start offsets of the hand centre from the block (m): [low, high] per axis.
+START_LOW, START_HIGH = np.array([-0.015, -0.015, 0.12]), np.array([0.015, 0.015, 0.26])
 
 
 class LowerTask(Task):

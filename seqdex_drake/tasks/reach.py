@@ -1,29 +1,30 @@
 """Reach (hand-over chain, stage 1): bring the hand centre over the block, in x-y only.
 
-Reset: an upright block on the table, the open hand's centre 3-11 cm away in x and y and 12-26 cm above the
-block's centre. Reward: lambda1 exp(-alpha0 d_xy) + penalties, d_xy the horizontal distance from the hand
-centre to the block's centre; the height is deliberately not rewarded (see ``handover_common``). Success (at
-the episode's end, which is the hand-over): d_xy < 0.015 m.
+Reset: an upright block on the table, the open hand's centre 0-4 cm away in x and y and 12-26 cm above the
+block. Reward: lambda1 exp(-alpha0 d_xy), d_xy the horizontal distance from the hand centre to the block (the
+action and torque penalties have zero weight: only the wrist acts); the height is deliberately not rewarded
+(see ``handover_common``). Success (at the episode's end, which is the hand-over): d_xy < 0.02 m.
 """
 
 import numpy as np
 
 from seqdex_drake.tasks.base import Task, TaskConfig
-from seqdex_drake.tasks.handover_common import hand_center, place_block_and_hand
+from seqdex_drake.tasks.handover_common import WRIST_FLOOR, hand_center, place_block_and_hand
 from seqdex_drake.tasks.rewards import RewardWeights, penalties
 
 
 def default_config() -> TaskConfig:
     return TaskConfig(
-        name="reach", scenario="handover/reach", episode_length=30, ema=1.0, hand_actions=False,
+        name="reach", scenario="handover/reach", episode_length=30, ema=1.0,
+        hand_actions=False, wrist_floor=WRIST_FLOOR,
         reward=RewardWeights(progress=1.0, action=0.0, torque=0.0, alpha0=20.0),
-        # success_threshold: [horizontal distance of the hand centre to the block's centre (m)]
-        object_types=[1], success_threshold=[0.015],
+        # success_threshold: [horizontal distance of the hand centre to the block (m)]
+        object_types=[1], success_threshold=[0.02],
         drop_height=0.3)
 
 
-#: Start offsets of the hand centre from the block's centre (m): [low, high] per axis.
-START_LOW, START_HIGH = np.array([-0.08, -0.08, 0.12]), np.array([0.08, 0.08, 0.26])
+#: Start offsets of the hand centre from the block (m): [low, high] per axis.
+START_LOW, START_HIGH = np.array([-0.04, -0.04, 0.12]), np.array([0.04, 0.04, 0.26])
 
 
 class ReachTask(Task):
