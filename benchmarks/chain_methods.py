@@ -124,7 +124,12 @@ def main() -> None:
         for seed in seeds:
             run_seed(args, seed)
     else:
-        flags = [a for a in sys.argv[1:] if not a.startswith("--jobs")]
+        flags, skip = [], False
+        for argument in sys.argv[1:]:  # Everything but --jobs N / --jobs=N goes to the per-seed processes.
+            if skip or argument.startswith("--jobs"):
+                skip = argument == "--jobs" and not skip
+                continue
+            flags.append(argument)
         pending = list(seeds)
         running = []
         while pending or running:
