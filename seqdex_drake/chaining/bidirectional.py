@@ -174,6 +174,7 @@ class Pipeline:
                                                    episode_length=self.task_configs[index].episode_length)
                 if ppo is None:
                     ppo = PPO.for_env(self._ppo_config(task), env)
+                    ppo.obs_spec = observation_spec(task, env.single_observation_space.shape[0]).to_dict()
                 metrics = ppo.train(env, directory, total_steps=target, progress=self.progress)
             finally:
                 env.close()

@@ -95,7 +95,11 @@ def run(args) -> int:
     if ppo.obs_dim != dim or ppo.action_dim != env.action_space.shape[0]:
         raise CliError(f"checkpoint {checkpoint} is a policy for {ppo.obs_dim} observations / {ppo.action_dim} "
                        f"actions, the {args.task} env has {dim} / {env.action_space.shape[0]}: another task's run?")
-    buffer = _open_buffer(args, out, target, config.scenario, observation_spec(args.task, dim))
+    spec = observation_spec(args.task, dim)
+    if ppo.obs_spec is not None and ppo.obs_spec.get("digest") != spec.digest:
+        raise CliError(f"checkpoint {checkpoint} is a policy for '{ppo.obs_spec.get('description')}', but "
+                       f"the {args.task} env gives '{spec.description}': another task's run?")
+    buffer = _open_buffer(args, out, target, config.scenario, spec)
     before = len(buffer)
     ppo.model.eval()
     successes = 0

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from seqdex_drake.chaining.wrappers import InitialStateVectorEnv  # noqa: F401 (also imported from here by tests)
-from seqdex_drake.cli import PREVIOUS_TASK, CliError, config_dict, task_config
+from seqdex_drake.cli import PREVIOUS_TASK, CliError, config_dict, observation_spec, task_config
 
 #: Network widths under ``--test`` (the paper's 1024-1024-512 MLPs are needlessly slow for a smoke run).
 TEST_HIDDEN_SIZES = (64, 64)
@@ -129,6 +129,7 @@ def run(args) -> int:
             vec_env = InitialStateVectorEnv(vec_env, buffer, ppo_config.seed, EnvState)
         if ppo is None:
             ppo = PPO.for_env(ppo_config, vec_env)
+            ppo.obs_spec = observation_spec(args.task, vec_env.single_observation_space.shape[0]).to_dict()
         elif ppo.obs_dim != vec_env.single_observation_space.shape[0]:
             raise CliError(f"--resume: the checkpoint's policy reads {ppo.obs_dim} observations, the {args.task} "
                            f"env gives {vec_env.single_observation_space.shape[0]}")

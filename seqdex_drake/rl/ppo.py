@@ -91,6 +91,9 @@ class PPO:
         self._saved_env_state: dict | None = None  # From a checkpoint; train() restores it into its env.
         self.nonfinite_values = 0
         """Non-finite observation / reward entries from the env replaced by 0 so far."""
+        self.obs_spec: dict | None = None
+        """What the policy reads (an ObservationSpec as a dict), recorded by whoever builds the learner for a task
+        and checked by the commands that load a checkpoint for a task; None when not recorded."""
 
     @classmethod
     def for_env(cls, config: PPOConfig, vec_env) -> "PPO":
@@ -317,6 +320,7 @@ class PPO:
             "stats": self.stats.state_dict(),
             **({} if env_state is None else {"env": env_state}),
             "nonfinite_values": self.nonfinite_values,
+            "obs_spec": self.obs_spec,
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -333,6 +337,7 @@ class PPO:
         self._env, self._next_obs, self.buffer = None, None, None
         self._saved_env_state = state.get("env")
         self.nonfinite_values = int(state.get("nonfinite_values", 0))
+        self.obs_spec = state.get("obs_spec")
 
     def save(self, path: str | Path) -> Path:
         """Writes a full-state checkpoint atomically."""

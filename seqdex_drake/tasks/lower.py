@@ -1,7 +1,7 @@
 """Lower (hand-over chain, stage 2): bring the hand centre to a point just above the block in a few steps.
 
-Reset (standalone): the hand centre within 1.5 cm (per axis) of the block's vertical line (Reach's success) at a height of
-12-26 cm above the block. From a hand-over, Reach's terminal state. The goal point is 10 cm above the block
+Reset (standalone): the hand centre within 1.5 cm (per axis) of the block's vertical line (Reach's success) at a
+height of 12-26 cm above the block. From a hand-over, Reach's terminal state. The goal point is 10 cm above the block
 (its frame, on the table); the episode is 10 steps of at most 5 mm, so starts more than about 7 cm above the
 goal cannot succeed. Reward: lambda1 exp(-alpha0 d), d the distance from the hand centre to the goal point (the
 action and torque penalties have zero weight: only the wrist acts). Success (at the episode's end): d < 0.02 m.
