@@ -1,7 +1,5 @@
 """The station Diagram: builds for every scenario, named ports, canonical joints, gravity compensation."""
 
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -11,7 +9,7 @@ from seqdex_drake import CANONICAL_JOINTS, LoadScenario, MakeControllerPlant, Ma
 from seqdex_drake.harness import MakeStationHarness
 from seqdex_drake.robots.allegro import ALLEGRO_JOINT_NAMES
 from seqdex_drake.robots.franka import FRANKA_JOINT_NAMES
-from seqdex_drake.scenario import REPO_ROOT, ScenarioError
+from seqdex_drake.scenario import ScenarioError
 
 ROBOT_PORTS = ["franka.desired_state", "allegro.desired_state"]
 ROBOT_OUTPUTS = ["franka.state", "allegro.state", "franka.net_actuation", "allegro.net_actuation", "body_poses",
@@ -85,18 +83,3 @@ def test_missing_model_file_is_a_clear_error():
 def test_unknown_object_pattern_is_a_clear_error():
     with pytest.raises(ScenarioError, match="block_9"):
         MakeStation(LoadScenario("grasp", scenario_text="{objects: [block_9]}"))
-
-
-def test_simulate_chain_headless_test_exits_zero():
-    result = subprocess.run([sys.executable, str(REPO_ROOT / "scripts" / "simulate_chain.py"), "--headless",
-                             "--test"], capture_output=True, text=True, timeout=300)
-    assert result.returncode == 0, result.stderr
-    assert "simulated 0.5" in result.stdout and "all finite: True" in result.stdout
-
-
-def test_simulate_chain_rejects_unknown_scenario():
-    result = subprocess.run([sys.executable, str(REPO_ROOT / "scripts" / "simulate_chain.py"), "--headless",
-                             "--test", "--scenario", "building_blocks/dance"], capture_output=True, text=True,
-                            timeout=120)
-    assert result.returncode == 2
-    assert "valid scenarios" in result.stderr and "Traceback" not in result.stderr
