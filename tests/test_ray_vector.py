@@ -35,7 +35,9 @@ def ray_instance():
 
 @pytest.fixture(scope="module")
 def ray_env(ray_instance):
-    with RayVectorEnv(TASK, 2, seed=SEED, config=CONFIG, timeout=120.0) as vector_env:
+    # A generous answer timeout: an actor imports Drake and builds its station (about 40 s on an idle 2-core
+    # machine, over 120 s when other jobs load it); stalls are tested with a short timeout further down.
+    with RayVectorEnv(TASK, 2, seed=SEED, config=CONFIG, timeout=600.0) as vector_env:
         yield vector_env
 
 
@@ -139,7 +141,7 @@ def test_every_ray_socket_stays_on_loopback(ray_env):
 
 
 def test_a_killed_actor_is_restarted_once_then_a_stalled_one_is_reported(ray_instance):
-    vector_env = make_vector_env(TASK, 1, seed=SEED, config=CONFIG, backend="ray", max_restarts=1, timeout=120.0)
+    vector_env = make_vector_env(TASK, 1, seed=SEED, config=CONFIG, backend="ray", max_restarts=1, timeout=600.0)
     assert isinstance(vector_env, RayVectorEnv)
     stopped = None
     try:
