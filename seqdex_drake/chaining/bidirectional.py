@@ -144,6 +144,19 @@ class Pipeline:
             f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in outcome.items()))
         return outcome
 
+    def phase_learner(self, phase: str, steps: int, start_from=None):
+        """The learner and step target of PPO phase ``phase``: an interrupted phase continues from its own
+        ``last.pt`` toward its recorded target; a new one starts from ``start_from`` (or from scratch: None is
+        returned and the caller builds the learner) and records its target at once, so a kill keeps it."""
+        directory = self.run.phase_dir(phase)
+        targets = self.run.record.setdefault("targets", {})
+        if (directory / "last.pt").is_file() and phase in targets:
+            return PPO.resume(directory / "last.pt"), targets[phase]
+        ppo = PPO.resume(start_from) if start_from is not None else None
+        targets[phase] = (0 if ppo is None else ppo.global_step) + steps
+        self.run.save()
+        return ppo, targets[phase]
+
     def train_stage(self, phase: str, index: int, steps: int, start_from=None, buffer_path=None,
                     bonus=None) -> dict:
         """PPO on stage ``index`` for ``steps`` env steps (from scratch, or continuing ``start_from``), its
@@ -153,13 +166,7 @@ class Pipeline:
             from seqdex_drake.envs.subtask_env import EnvState
 
             task, directory = self.stages[index], self.run.phase_dir(phase)
-            if (directory / "last.pt").is_file():  # An interrupted phase: continue it.
-                ppo = PPO.resume(directory / "last.pt")
-                target = self.run.record.setdefault("targets", {})[phase]
-            else:
-                ppo = PPO.resume(start_from) if start_from is not None else None
-                target = (0 if ppo is None else ppo.global_step) + steps
-                self.run.record.setdefault("targets", {})[phase] = target
+            ppo, target = self.phase_learner(phase, steps, start_from)
             seed = self.config.seed + 1000 * index
             env = self._vector_env(index, seed)
             try:

@@ -140,9 +140,10 @@ class RunDirectory:
                                 f"another --run-dir")
         self.record = record
         self.root.mkdir(parents=True, exist_ok=True)
-        self._save()
+        self.save()
 
-    def _save(self) -> None:
+    def save(self) -> None:
+        """Writes the record (atomically)."""
         data = (json.dumps(self.record, indent=2) + "\n").encode()
         atomic_write(self.record_path, lambda file: file.write(data))
 
@@ -152,7 +153,7 @@ class RunDirectory:
 
     def finish(self, phase: str, outcome) -> None:
         self.record["done"][phase] = outcome
-        self._save()
+        self.save()
 
     def phase_dir(self, phase: str) -> Path:
         return self.root / "phases" / phase

@@ -9,14 +9,12 @@ own reset distribution), moving the start progressively earlier along the chain.
 
 import numpy as np
 
+from seqdex_drake.chaining.bidirectional import EVAL_SEED
 from seqdex_drake.chaining.pipeline import pipeline_budget
 from seqdex_drake.chaining.rollouts import deterministic_policy
 from seqdex_drake.envs.chain_env import ChainEnv
 from seqdex_drake.envs.serial import SerialVectorEnv
 from seqdex_drake.rl.ppo import PPO
-
-#: Evaluation episodes are seeded from here on (as the chained methods' evaluation).
-EVAL_SEED = 100_000
 
 
 def _chain_env(pipeline, slot: int, start_stage: int = 0) -> ChainEnv:
@@ -36,13 +34,7 @@ def _chain_vector_env(pipeline, start_stage: int, seed: int) -> SerialVectorEnv:
 def _train_phase(pipeline, phase: str, start_stage: int, steps: int, start_from=None) -> dict:
     def work():
         directory = pipeline.run.phase_dir(phase)
-        if (directory / "last.pt").is_file():
-            ppo = PPO.resume(directory / "last.pt")
-            target = pipeline.run.record["targets"][phase]
-        else:
-            ppo = PPO.resume(start_from) if start_from is not None else None
-            target = (0 if ppo is None else ppo.global_step) + steps
-            pipeline.run.record.setdefault("targets", {})[phase] = target
+        ppo, target = pipeline.phase_learner(phase, steps, start_from)
         env = _chain_vector_env(pipeline, start_stage, pipeline.config.seed + 17 * start_stage)
         try:
             if ppo is None:
