@@ -20,6 +20,8 @@ from PIL import Image
 
 REPO = Path(__file__).resolve().parents[1]
 SCRIPT = REPO / "scripts" / "simulate_chain.py"
+LIVE_WAIT = "--virtual-time-budget=5000"
+REPLAY_WAIT = "--timeout=15000"
 
 
 def chromium() -> str:
@@ -29,14 +31,19 @@ def chromium() -> str:
     return path
 
 
-def screenshot(url: str, out: Path, attempts: int = 3) -> np.ndarray:
-    """A 1024 x 768 screenshot of ``url`` (retried: a page playing a recording sometimes hangs Chromium)."""
+def screenshot(url: str, out: Path, wait: str, attempts: int = 3) -> np.ndarray:
+    """A 1024 x 768 screenshot of ``url``, taken after ``wait`` (a Chromium flag), retried on a hang.
+
+    The live page fills in over its websocket after the page has loaded, so it needs virtual time
+    (``--virtual-time-budget``). The HTML replay carries its scene inline, and under virtual time Chromium
+    hung on it in most tries (the page plays its recording forever); ``--timeout`` screenshots it once loaded.
+    """
     for _ in range(attempts):
         out.unlink(missing_ok=True)
         command = [chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
                    "--disable-quic", "--no-first-run", "--disable-background-networking", "--disable-component-update",
                    "--disable-sync", f"--user-data-dir={tempfile.mkdtemp()}", "--window-size=1024,768",
-                   "--virtual-time-budget=5000", f"--screenshot={out}", url]
+                   wait, f"--screenshot={out}", url]
         try:
             subprocess.run(command, capture_output=True, timeout=60)
         except subprocess.TimeoutExpired:
@@ -78,7 +85,7 @@ def test_live_page_and_replay_render(tmp_path):
             if "keeps serving" in line or time.monotonic() > deadline:
                 break
         assert url is not None and replay.is_file(), "".join(lines)
-        check_rendered(screenshot(url, tmp_path / "live.png"), "live meshcat page")
+        check_rendered(screenshot(url, tmp_path / "live.png", LIVE_WAIT), "live meshcat page")
     finally:
         process.send_signal(signal.SIGINT)
         try:
@@ -86,4 +93,4 @@ def test_live_page_and_replay_render(tmp_path):
         except subprocess.TimeoutExpired:
             os.kill(process.pid, signal.SIGKILL)
     assert process.returncode == 0, "".join(lines)
-    check_rendered(screenshot(replay.as_uri(), tmp_path / "replay.png"), "HTML replay")
+    check_rendered(screenshot(replay.as_uri(), tmp_path / "replay.png", REPLAY_WAIT), "HTML replay")
