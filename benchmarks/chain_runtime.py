@@ -4,7 +4,9 @@ Part 1 (tick): 4 paper-size policies (actor MLPs [1024, 1024, 512], untrained we
 Grasp 159, Insert 173 inputs) all active, plus the switcher with F^2..F^4 (the attention model, H = 10, default
 width) on constant observations, stepped by a Drake Simulator; the wall time per tick is ``tick_ms``. The chain
 itself runs only the executing stage's policy per tick: ``tick_ms_one_policy`` times switcher + 1 policy.
-``policy_ms`` / ``feasibility_ms`` are single forward passes.
+``policy_ms`` / ``feasibility_ms`` are single forward passes of the default numpy inference path
+(``systems/inference.py``), ``*_torch_ms`` the same through torch; ``tick_ms_torch`` is the 4-policy tick with
+``inference="torch"``.
 
 Part 2 (real time): the ``building_blocks/grasp`` station with the chain controller (Orient, Grasp, Insert,
 untrained paper-size policies, F^Grasp and F^Insert with H = 10), a block in the box, simulated for
@@ -13,7 +15,8 @@ untrained paper-size policies, F^Grasp and F^Insert with H = 10), a block in the
 constant targets, for comparison. Goals (reported, not asserted): tick <= 1 ms, real time >= 1.0.
 
 Every figure is also given per process-CPU second (``*_cpu``): on a shared machine wall time includes waiting
-for a core, CPU time does not (torch runs on one thread here, so CPU time is close to idle wall time).
+for a core, CPU time does not (torch and numpy's BLAS run on one thread here, so CPU time is close to idle wall
+time). ``load_average`` is the 1-minute load average when the script starts.
 
     python benchmarks/chain_runtime.py [--ticks 300] [--seconds 3] [--threads N] [--test]
 
@@ -22,6 +25,7 @@ The last line printed is one JSON object.
 
 import argparse
 import json
+import os
 import time
 
 import numpy as np
@@ -43,8 +47,9 @@ from seqdex_drake.chaining.spec import ObservationSpec
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q
 from seqdex_drake.scene.objects import SceneObjects
 from seqdex_drake.scene.piles import BOX_CENTER
+from seqdex_drake.systems.inference import FeasibilitySnapshot, PolicySnapshot, limit_blas_threads
 from seqdex_drake.systems.policy import PolicyParams, PolicySystem
-from seqdex_drake.systems.switcher import FeasibilitySwitcher
+from seqdex_drake.systems.switcher import FeasibilitySwitcher, SwitcherParams
 from seqdex_drake.tasks.blocks_common import resting_pose
 
 PERIOD = 1.0 / 60.0
@@ -60,7 +65,7 @@ def untrained_f(source: str, target: str, obs_dim: int, history: int = 10) -> Fe
     return FeasibilityFile(model, config, 1.0, ObservationSpec(obs_dim, source), source, target, {})
 
 
-def time_tick(ticks: int, num_policies: int, seed: int = 0) -> tuple[float, float]:
+def time_tick(ticks: int, num_policies: int, seed: int = 0, inference: str = "numpy") -> tuple[float, float]:
     """Wall and process-CPU milliseconds per tick of switcher + ``num_policies`` always-active policies."""
     tasks = list(SIZES)
     sizes = [SIZES[t] for t in tasks]
@@ -68,11 +73,13 @@ def time_tick(ticks: int, num_policies: int, seed: int = 0) -> tuple[float, floa
     builder = DiagramBuilder()
     rng = np.random.default_rng(seed)
     sources = [builder.AddSystem(ConstantVectorSource(rng.normal(size=size))) for size in sizes]
-    switcher = builder.AddSystem(FeasibilitySwitcher(feasibility, sizes, [10**6] * 4, PERIOD))
+    switcher = builder.AddSystem(FeasibilitySwitcher(feasibility, sizes, [10**6] * 4, PERIOD,
+                                                     SwitcherParams(inference=inference)))
     for i in range(1, len(tasks)):
         builder.Connect(sources[i - 1].get_output_port(), switcher.GetInputPort(f"observation.{i - 1}"))
     for i in range(num_policies):
-        policy = builder.AddSystem(PolicySystem.untrained(sizes[i], seed=i, params=PolicyParams(PERIOD)))
+        params = PolicyParams(PERIOD, inference=inference)
+        policy = builder.AddSystem(PolicySystem.untrained(sizes[i], seed=i, params=params))
         builder.Connect(sources[i].get_output_port(), policy.GetInputPort("observation"))
     simulator = Simulator(builder.Build())
     simulator.Initialize()
@@ -83,7 +90,7 @@ def time_tick(ticks: int, num_policies: int, seed: int = 0) -> tuple[float, floa
 
 
 def time_forward(module, make_input, repeats: int) -> float:
-    """Wall milliseconds of one inference call."""
+    """Wall milliseconds of one inference call (torch modules run under ``inference_mode``)."""
     x = make_input()
     with torch.inference_mode():
         for _ in range(5):
@@ -140,18 +147,28 @@ def main():
     ticks, seconds = (20, 0.2) if args.test else (args.ticks, args.seconds)
     if args.threads:
         torch.set_num_threads(args.threads)
-    results = {"torch_threads": torch.get_num_threads(), "ticks": ticks, "sim_seconds": seconds}
+        blas_limited = limit_blas_threads(args.threads)
+    else:
+        blas_limited = False
+    results = {"load_average": round(os.getloadavg()[0], 2), "torch_threads": torch.get_num_threads(),
+               "blas_threads_set": blas_limited, "ticks": ticks, "sim_seconds": seconds}
 
     policy = PolicySystem.untrained(159).model
-    results["policy_ms"] = time_forward(policy.action_mean, lambda: torch.zeros(1, 159), 10 * ticks)
+    results["policy_ms"] = time_forward(PolicySnapshot(policy), lambda: np.zeros(159), 10 * ticks)
+    results["policy_torch_ms"] = time_forward(policy.action_mean, lambda: torch.zeros(1, 159), 10 * ticks)
     f = untrained_f("orient", "grasp", 159).model
-    results["feasibility_ms"] = time_forward(f, lambda: torch.zeros(1, 10, 159), 10 * ticks)
+    results["feasibility_ms"] = time_forward(FeasibilitySnapshot(f), lambda: np.zeros((10, 159)), 10 * ticks)
+    results["feasibility_torch_ms"] = time_forward(f, lambda: torch.zeros(1, 10, 159), 10 * ticks)
     results["tick_ms"], results["tick_cpu_ms"] = time_tick(ticks, num_policies=4)
     results["tick_ms_one_policy"], results["tick_cpu_ms_one_policy"] = time_tick(ticks, num_policies=1)
-    print(f"one tick, switcher (3 F, H=10) + 4 policies: {results['tick_ms']:.3f} ms wall, "
-          f"{results['tick_cpu_ms']:.3f} ms CPU (goal <= 1 ms); + 1 policy: {results['tick_ms_one_policy']:.3f} ms "
-          f"wall, {results['tick_cpu_ms_one_policy']:.3f} ms CPU; policy forward {results['policy_ms']:.3f} ms, "
-          f"F forward {results['feasibility_ms']:.3f} ms; torch threads {results['torch_threads']}", flush=True)
+    results["tick_ms_torch"], results["tick_cpu_ms_torch"] = time_tick(ticks, num_policies=4, inference="torch")
+    print(f"load average {results['load_average']}; one tick, switcher (3 F, H=10) + 4 policies: "
+          f"{results['tick_ms']:.3f} ms wall, {results['tick_cpu_ms']:.3f} ms CPU (goal <= 1 ms); + 1 policy: "
+          f"{results['tick_ms_one_policy']:.3f} ms wall, {results['tick_cpu_ms_one_policy']:.3f} ms CPU; torch path "
+          f"(4 policies) {results['tick_ms_torch']:.3f} ms wall, {results['tick_cpu_ms_torch']:.3f} ms CPU; policy "
+          f"forward {results['policy_ms']:.3f} ms (torch {results['policy_torch_ms']:.3f}), F forward "
+          f"{results['feasibility_ms']:.3f} ms (torch {results['feasibility_torch_ms']:.3f}); torch threads "
+          f"{results['torch_threads']}, BLAS threads set: {blas_limited}", flush=True)
 
     results["station_realtime_factor"], results["station_realtime_factor_cpu"] = realtime_factor(seconds, chain=False)
     results["realtime_factor"], results["realtime_factor_cpu"] = realtime_factor(seconds)

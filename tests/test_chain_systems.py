@@ -54,9 +54,12 @@ def tick(simulator: Simulator, ticks: int = 1) -> None:
 
 
 # --------------------------------------------------------------------------------------------- policy
-def test_policy_equals_direct_torch_call_with_ema():
+@pytest.mark.parametrize("inference, atol", [("torch", 1e-6), ("numpy", 1e-5)])
+def test_policy_equals_direct_torch_call_with_ema(inference, atol):
+    # The numpy path (default) runs float32 in another summation order than torch; this model's x300 output
+    # layer amplifies that to ~1.5e-6 on unclipped actions, within the documented ~1e-5.
     model = tiny_model(159)
-    params = PolicyParams(control_period=PERIOD, ema=0.3, wrist_step=0.005)
+    params = PolicyParams(control_period=PERIOD, ema=0.3, wrist_step=0.005, inference=inference)
     policy = PolicySystem(model, 159, params)
     context = policy.CreateDefaultContext()
     rng = np.random.default_rng(0)
@@ -75,10 +78,10 @@ def test_policy_equals_direct_torch_call_with_ema():
         if k == 0:
             assert np.any(np.abs(raw) == 1.0), "the test model should saturate some actions"
         expected = np.r_[0.3 * raw[:16] + 0.7 * previous[:16], raw[16:]]
-        np.testing.assert_allclose(policy.GetOutputPort("raw_action").Eval(context), raw, atol=1e-6)
-        np.testing.assert_allclose(policy.GetOutputPort("action").Eval(context), expected, atol=1e-6)
+        np.testing.assert_allclose(policy.GetOutputPort("raw_action").Eval(context), raw, atol=atol)
+        np.testing.assert_allclose(policy.GetOutputPort("action").Eval(context), expected, atol=atol)
         np.testing.assert_allclose(policy.GetOutputPort("hand_target").Eval(context),
-                                   scale_action_to_limits(expected[:16]), atol=1e-6)
+                                   scale_action_to_limits(expected[:16]), atol=atol)
         np.testing.assert_allclose(policy.GetOutputPort("wrist_translation").Eval(context), 0.005 * raw[16:],
                                    atol=1e-8)
         previous = expected

@@ -38,6 +38,7 @@ from seqdex_drake.robots.arm_ik import PalmIK
 from seqdex_drake.scenario import Scenario
 from seqdex_drake.station import AddStationPlant, MakeControllerPlant
 from seqdex_drake.systems.chain_parts import ApproachTarget, ChainMarker, StageRouter, WristTargetIntegrator
+from seqdex_drake.systems.inference import limit_blas_threads
 from seqdex_drake.systems.observations import ObservationAssembler, ObservationTarget
 from seqdex_drake.systems.osc import OperationalSpaceController, OscParams
 from seqdex_drake.systems.policy import PAPER_HIDDEN_SIZES, PolicyParams, PolicySystem
@@ -58,7 +59,8 @@ class ChainParams:
     """Switch cap, per-stage step budgets (default: each task's ``episode_length``), decision rule."""
     osc: OscParams | None = None
     """Approach controller parameters; None: ``OscParams`` with the controlled point at the hand centre (the
-    point the sub-task resets place 5 cm above the target)."""
+    point the sub-task resets place 5 cm above the target) and ``solve_while_handed_over=False`` (no QP while a
+    policy drives the arm)."""
     untrained_seed: int = 0
     """Stage i without a checkpoint gets a freshly initialised policy seeded ``untrained_seed + i``."""
     untrained_hidden_sizes: tuple[int, ...] = PAPER_HIDDEN_SIZES
@@ -67,6 +69,13 @@ class ChainParams:
     """If set, ``torch.set_num_threads`` (process-wide!) when the controller is built: batch-1 inference is
     fastest on one thread, and spinning OpenMP workers compete with the simulation for the cores (measured:
     an F forward pass took 25 ms with 2 threads and 4 ms with 1 on a loaded 2-core machine). None: leave it."""
+    blas_threads: int | None = 1
+    """If set, numpy's BLAS thread count (process-wide!, :func:`~seqdex_drake.systems.inference.limit_blas_threads`)
+    when the controller is built: the numpy inference path's batch-1 products ran 0.09 ms on 1 OpenBLAS thread
+    and 6 ms on the default 2 on the loaded 2-core machine. None: leave it."""
+    inference: str = "numpy"
+    """Inference path of the policies and the switcher's F's: "numpy" (float32 snapshots, fast at batch 1) or
+    "torch" (the models themselves); overrides ``switcher.inference``."""
 
 
 @dataclasses.dataclass
@@ -190,6 +199,8 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
         import torch
 
         torch.set_num_threads(params.torch_threads)
+    if params.blas_threads:
+        limit_blas_threads(params.blas_threads)
     tasks = [_check_task(task) for task, _ in stages]
     if not tasks:
         raise ValueError("a chain needs at least one stage")
@@ -214,15 +225,18 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
     policies = []
     for i, ((task, policy), config) in enumerate(zip(stages, configs, strict=True)):
         ema = config.ema if params.ema is None else params.ema
-        policy_params = PolicyParams(control_period=period, ema=ema, wrist_step=config.wrist_step)
+        policy_params = PolicyParams(control_period=period, ema=ema, wrist_step=config.wrist_step,
+                                     inference=params.inference)
         system = _make_policy(i, task, policy, sizes[i], policy_params, params)
         policies.append(builder.AddNamedSystem(f"policy.{i}", system))
     f_files = [_load_f(i, tasks, entry, sizes) for i, entry in enumerate(feasibility)]
+    switcher_params = dataclasses.replace(params.switcher, inference=params.inference)
     switcher = builder.AddNamedSystem("switcher", FeasibilitySwitcher(
-        f_files, sizes, [config.episode_length for config in configs], period, params.switcher))
+        f_files, sizes, [config.episode_length for config in configs], period, switcher_params))
     router = builder.AddNamedSystem("router", StageRouter(len(tasks), period))
     approach = builder.AddNamedSystem("approach_target", ApproachTarget(plant, [goal for goal, _ in layouts]))
-    osc_params = params.osc or OscParams(p_PalmPc_Palm=tuple(p_PalmHc_Palm), hover_height=configs[0].hover_height)
+    osc_params = params.osc or OscParams(p_PalmPc_Palm=tuple(p_PalmHc_Palm), hover_height=configs[0].hover_height,
+                                         solve_while_handed_over=False)
     controller_plant = MakeControllerPlant(scenario)
     home = np.asarray(scenario.robot.arm_home, dtype=float)
     osc = builder.AddNamedSystem("osc", OperationalSpaceController(

@@ -173,7 +173,8 @@ class WristTargetIntegrator(LeafSystem):
         self._q_index = self.DeclareDiscreteState(NUM_ARM)
         tickets = {self.discrete_state_ticket(self._q_index), self._osc_port.ticket(), self._wrist_port.ticket(),
                    self._in_charge_port.ticket()}
-        self.DeclareVectorOutputPort("franka.desired_state", 2 * NUM_ARM, self._calc, prerequisites_of_calc=tickets)
+        self._output_port = self.DeclareVectorOutputPort("franka.desired_state", 2 * NUM_ARM, self._calc,
+                                                         prerequisites_of_calc=tickets)
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         self.DeclarePeriodicDiscreteUpdateEvent(control_period, 0.0, self._update)
 
@@ -191,7 +192,9 @@ class WristTargetIntegrator(LeafSystem):
         discrete_state.set_value(self._q_index, self._state_port.Eval(context)[:NUM_ARM])
 
     def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
-        discrete_state.set_value(self._q_index, self._command(context)[:NUM_ARM])
+        # The held output is exactly this tick's command and is usually cached (the station read it), so the
+        # IK step is not solved twice per tick.
+        discrete_state.set_value(self._q_index, self._output_port.Eval(context)[:NUM_ARM])
 
 
 class ChainMarker(LeafSystem):

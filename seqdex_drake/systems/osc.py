@@ -26,7 +26,8 @@ Handover (output ``approach_active``): 1 while the controller is in charge, 0 on
 within ``hover_tolerance`` of the hover point or within ``handover_distance`` of the target itself (the
 policy then moves the hand close to the target without the OSC pulling it back). It turns 1 again only when
 the target is farther than ``reengage_distance`` from the controlled point (a new or moved target). The
-controller keeps tracking the hover point either way; a switcher downstream chooses whose command to use.
+controller keeps tracking the hover point either way (unless ``solve_while_handed_over`` is False); a switcher
+downstream chooses whose command to use.
 
 Failures: a QP that OSQP does not solve holds the last command, adds one to the ``qp_failures`` output and
 warns once. A non-finite target or robot state raises ``ValueError`` (it means a bug upstream).
@@ -106,6 +107,9 @@ class OscParams:
     """Held hand (``palm`` frame) orientation in the world, 3x3; None: the orientation at ``posture_q``."""
     posture_q: tuple[float, ...] | None = None
     """Posture (rad) of the secondary task; None: the arm home given to the controller."""
+    solve_while_handed_over: bool = True
+    """False: while handed over (before and after the tick) only the handover check runs and the command is held
+    (the chain controller's setting: its wrist IK drives the arm then). True: the QP runs every tick."""
     osqp_options: dict = dataclasses.field(default_factory=lambda: {
         "eps_abs": 1e-6, "eps_rel": 1e-6, "polishing": 1, "max_iter": 4000, "verbose": 0})
     """Options passed to OSQP by name (Drake's OsqpSolver spells solution polishing "polishing")."""
@@ -116,7 +120,7 @@ class OscStatistics:
     """Wall-clock statistics of the per-tick QP, for benchmarks (not part of the simulated state)."""
 
     ticks: int = 0
-    """Periodic updates run."""
+    """Periodic updates that solved the QP."""
     failures: int = 0
     """Updates whose QP OSQP did not solve."""
     solve_seconds_total: float = 0.0
@@ -302,6 +306,12 @@ class OperationalSpaceController(LeafSystem):
         X_WPalm = plant.EvalBodyPoseInWorld(pc, self._palm_frame.body())
         p_WC = X_WPalm @ self._p_PC
         p_WH = self.hover_point(p_WT)
+        status = discrete_state.get_value(self._status_index).copy()
+        was_active = bool(status[0])
+        status[0] = self._next_active(was_active, p_WC, p_WH, p_WT)
+        if not (p.solve_while_handed_over or was_active or status[0]):
+            discrete_state.set_value(self._status_index, status)  # Handed over: the command is held.
+            return
         world = plant.world_frame()
         J = plant.CalcJacobianSpatialVelocity(pc, JacobianWrtVariable.kV, self._palm_frame, self._p_PC,
                                               world, world)
@@ -327,7 +337,6 @@ class OperationalSpaceController(LeafSystem):
         self._solver.Solve(self._prog, self._guess, self._solver_options, self._result)
         solve_seconds = time.perf_counter() - solve_start
 
-        status = discrete_state.get_value(self._status_index).copy()
         if self._result.is_success():
             solution = self._result.GetSolution()
             self._guess[:] = solution
@@ -342,7 +351,6 @@ class OperationalSpaceController(LeafSystem):
                 _LOGGER.warning("OSC QP not solved (%s) at t = %.3f s; holding the last command",
                                 self._result.get_solution_result(), context.get_time())
                 self._warned = True
-        status[0] = self._next_active(bool(status[0]), p_WC, p_WH, p_WT)
         discrete_state.set_value(self._status_index, status)
         self._record(solve_seconds, time.perf_counter() - start)
 

@@ -14,6 +14,12 @@ not the system's own last output: connect ``previous_action`` (raw) and ``previo
 applied action (the chain's router does). A system whose ``active`` input is 0 skips inference and copies
 the applied action into its state, so that whenever it is routed to the robot its outputs are what the robot
 executes; when it becomes active its first filtered action starts from the applied one.
+
+Inference. By default (``PolicyParams.inference = "numpy"``) the action mean comes from a
+:class:`~seqdex_drake.systems.inference.PolicySnapshot`: the actor and its normalizer copied into float32 numpy
+arrays, equal to the torch model's output to ~1e-6 relative and several times cheaper per batch-1 call (torch's
+per-operator dispatch dominated). The snapshot is rebuilt when the model's tensors change in place.
+``inference = "torch"`` runs the model itself.
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ from pydrake.systems.framework import BasicVector, Context, DiscreteValues, Leaf
 
 from seqdex_drake.rl.networks import ActorCritic
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, scale_action_to_limits, unscale_limits_to_action
+from seqdex_drake.systems.inference import PolicySnapshot
 
 ACTION_SIZE = 19
 HAND_SIZE = 16
@@ -51,6 +58,8 @@ class PolicyParams:
     """Also filter the 3 wrist entries (the environments do not)."""
     wrist_step: float = 0.005
     """Wrist (hand centre) translation per update at action 1 (m), ``TaskConfig.wrist_step``."""
+    inference: str = "numpy"
+    """"numpy": a float32 numpy snapshot of the actor (fast at batch 1); "torch": the torch model itself."""
 
 
 def _check_model(model: ActorCritic, observation_size: int, source: str) -> None:
@@ -96,8 +105,11 @@ class PolicySystem(LeafSystem):
             raise ValueError(f"the EMA factor must be in (0, 1], got {params.ema}")
         if params.control_period <= 0:
             raise ValueError(f"control_period must be positive, got {params.control_period}")
+        if params.inference not in ("numpy", "torch"):
+            raise ValueError(f"inference must be 'numpy' or 'torch', got {params.inference!r}")
         _check_model(model, observation_size, source)
         self.model = model.eval()
+        self._snapshot = PolicySnapshot(model) if params.inference == "numpy" else None
         self.trained = bool(trained)
         self.source = str(source)
         self.observation_size = int(observation_size)
@@ -166,7 +178,16 @@ class PolicySystem(LeafSystem):
         return self._params
 
     def raw_action(self, observation: np.ndarray) -> np.ndarray:
-        """The clipped deterministic action for one observation (no filtering)."""
+        """The clipped deterministic action for one observation (no filtering), by ``params.inference``."""
+        if self._snapshot is None:
+            return self.torch_raw_action(observation)
+        if self._snapshot.stale():  # The model's weights changed in place since the snapshot.
+            self._snapshot = PolicySnapshot(self.model)
+        action = self._snapshot(np.asarray(observation, dtype=np.float32).reshape(-1)).astype(float)
+        return np.clip(action, -1.0, 1.0, out=action)
+
+    def torch_raw_action(self, observation: np.ndarray) -> np.ndarray:
+        """:meth:`raw_action` through the torch model (the reference the numpy snapshot is tested against)."""
         with torch.inference_mode():
             obs = torch.as_tensor(np.asarray(observation, dtype=np.float32)).reshape(1, -1)
             action = self.model.action_mean(obs)[0].numpy().astype(float)

@@ -24,6 +24,12 @@ per-stage time budgets (Policy-Seq).
 
 While the optional ``approach_active`` input is above 0.5 (the operational-space controller moves the hand,
 no policy acts) the step counter does not run and no decision is taken; histories and scores still update.
+
+Inference. By default (``SwitcherParams.inference = "numpy"``) the torch F's (attention or MLP) are evaluated
+from a :class:`~seqdex_drake.systems.inference.FeasibilityBank` (float32 numpy copies of their weights, equal to
+the torch forward pass to ~1e-6 relative, rebuilt when a model's tensors change in place; F's of one
+architecture run as one batched pass per tick); other F objects (e.g. a hand-written scorer with ``predict``)
+and ``inference = "torch"`` go through :func:`feasibility_score`.
 """
 
 from __future__ import annotations
@@ -36,6 +42,7 @@ import torch
 from pydrake.systems.framework import BasicVector, Context, DiscreteValues, LeafSystem
 
 from seqdex_drake.chaining.feasibility import pad_history, score
+from seqdex_drake.systems.inference import FeasibilityBank, snapshot_feasibility
 
 _STAGE, _STEPS, _SWITCHES = 0, 1, 2
 
@@ -64,6 +71,8 @@ class SwitcherParams:
     """Step budget (control ticks) per stage; None: each task's ``TaskConfig.episode_length``."""
     evaluate_every_tick: bool = False
     """Walk the scores every tick (a change of stage counts as a switch) instead of at decision points."""
+    inference: str = "numpy"
+    """"numpy": evaluate torch F's from float32 numpy snapshots (fast at batch 1); "torch": the models themselves."""
 
 
 def walk_back(scores: np.ndarray) -> int:
@@ -108,8 +117,11 @@ class FeasibilitySwitcher(LeafSystem):
             raise ValueError(f"every stage step budget must be at least 1 tick, got {budgets}")
         if params.max_switches < 0:
             raise ValueError(f"max_switches must be >= 0, got {params.max_switches}")
+        if params.inference not in ("numpy", "torch"):
+            raise ValueError(f"inference must be 'numpy' or 'torch', got {params.inference!r}")
         self._budgets = np.asarray(budgets, dtype=int)
         self._history_ports, self._history_index, self._history_shape = {}, {}, {}
+        self._bank, self._bank_stages = None, []  # The torch F's as numpy snapshots (inference = "numpy").
         for stage in range(1, count):
             f = self._feasibility[stage]
             if f is None:
@@ -121,10 +133,13 @@ class FeasibilitySwitcher(LeafSystem):
                                  f"stage {source}'s observation has {size}; use the F trained on that stage")
             if isinstance(f.model, torch.nn.Module):
                 f.model.eval()  # Inference only (no dropout).
+            if params.inference == "numpy" and snapshot_feasibility(f.model) is not None:
+                self._bank_stages.append(stage)
             length = int(f.config.input_length)
             self._history_shape[source] = (length, size)
             self._history_ports[source] = self.DeclareVectorInputPort(f"observation.{source}", size)
             self._history_index[source] = self.DeclareDiscreteState(np.zeros(1 + length * size))  # [count, rows]
+        self._build_bank()
         self._success_port = self.DeclareVectorInputPort("stage_success", 1)
         self._approach_port = self.DeclareVectorInputPort("approach_active", 1)
         self._status_index = self.DeclareDiscreteState(np.zeros(3))  # stage, steps in stage, switches used
@@ -158,11 +173,32 @@ class FeasibilitySwitcher(LeafSystem):
     def _append(self, context: Context, discrete_state: DiscreteValues, stage: int) -> np.ndarray:
         length, size = self._history_shape[stage]
         value = context.get_discrete_state(self._history_index[stage]).get_value()
-        rows = np.roll(value[1:].reshape(length, size), -1, axis=0)
-        rows[-1] = self._history_ports[stage].Eval(context)
-        count = min(int(value[0]) + 1, length)
-        discrete_state.set_value(self._history_index[stage], np.r_[count, rows.ravel()])
-        return rows[length - count:]
+        shifted = np.empty_like(value)  # [count, rows]: drop the oldest row, append the new observation.
+        count = shifted[0] = min(int(value[0]) + 1, length)
+        shifted[1:-size] = value[1 + size:]
+        shifted[-size:] = self._history_ports[stage].Eval(context)
+        discrete_state.set_value(self._history_index[stage], shifted)
+        return shifted[1:].reshape(length, size)[length - count:]
+
+    def _build_bank(self) -> None:
+        """(Re)builds the numpy snapshots: one batched pass per tick for all F's of one architecture."""
+        if self._bank_stages:
+            self._bank = FeasibilityBank([self._feasibility[stage].model for stage in self._bank_stages])
+
+    def _bank_values(self, histories: list[np.ndarray]) -> np.ndarray:
+        """F of every bank stage (in ``_bank_stages`` order) for their (T, obs_dim) histories."""
+        if self._bank.stale():  # A model's weights changed in place since the snapshots.
+            self._build_bank()
+        return self._bank(histories)
+
+    def score(self, stage: int, history: np.ndarray) -> float:
+        """c^stage = F^stage(history) / h^stage for a (T, obs_dim) history of stage ``stage - 1``'s layout."""
+        f = self._feasibility[stage]
+        if stage not in self._bank_stages:
+            return feasibility_score(f, history)
+        if self._bank.stale():
+            self._build_bank()
+        return self._bank.snapshots[self._bank_stages.index(stage)](history) / float(f.threshold)
 
     # ----------------------------------------------------------------------------------------- decision
     def decide(self, stage: int, steps: int, switches: int, scores: np.ndarray,
@@ -195,9 +231,12 @@ class FeasibilitySwitcher(LeafSystem):
     def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
         histories = {stage: self._append(context, discrete_state, stage) for stage in self._history_index}
         scores = np.full(self.num_stages, np.nan)
+        if self._bank_stages:
+            values = self._bank_values([histories[stage - 1] for stage in self._bank_stages])
+            scores[self._bank_stages] = values / [float(self._feasibility[i].threshold) for i in self._bank_stages]
         for stage in range(1, self.num_stages):
             f = self._feasibility[stage]
-            if f is not None:
+            if f is not None and stage not in self._bank_stages:
                 scores[stage] = feasibility_score(f, histories[stage - 1])
         discrete_state.set_value(self._scores_index, scores)
         status = context.get_discrete_state(self._status_index).get_value().copy()
