@@ -23,6 +23,20 @@ def test_observation_size_and_episode_length_match_the_paper(env):
     assert env.observation_space.shape == (PAPER_OBSERVATION_SIZE[name],)
     assert env.config.episode_length == PAPER_EPISODE_LENGTH[name]
     assert env.action_space.shape == (19,)  # 16 hand joints + 3D wrist translation.
+    # A wrist-only task pins the hand dims (low == high == 0); the others range over [-1, 1].
+    hand_range = 0.0 if not env.config.hand_actions else 2.0
+    assert np.all(env.action_space.high[:16] - env.action_space.low[:16] == hand_range)
+    assert np.all(env.action_space.low[16:] == -1.0) and np.all(env.action_space.high[16:] == 1.0)
+
+
+def test_a_wrist_only_task_ignores_and_zeroes_the_hand_actions():
+    env = make_env("reach")
+    env.reset(seed=5)
+    wrist = np.array([0.3, -0.2, 0.1])
+    pinned, _, _, _, _ = env.step(np.concatenate([np.zeros(16), wrist]))
+    env.reset(seed=5)
+    ignored, _, _, _, _ = env.step(np.concatenate([np.ones(16), wrist]))
+    np.testing.assert_array_equal(pinned, ignored)  # Same state, and the previous action reads 0 for the hand.
 
 
 def test_reset_and_step_with_zero_and_random_actions(env):

@@ -3,6 +3,7 @@
 import dataclasses
 import math
 
+import gymnasium
 import numpy as np
 import pytest
 import torch
@@ -240,3 +241,30 @@ def test_train_logs_checkpoints_and_stops_on_callback(tmp_path):
     resumed = PPO.resume(tmp_path / "last.pt")
     resumed.train(TargetVectorEnv(num_envs=4), tmp_path, total_steps=4 * 4 * 8, progress=False)
     assert resumed.num_updates == 4 and dataclasses.asdict(resumed.config) == dataclasses.asdict(ppo.config)
+
+
+def test_fixed_action_dims_are_pinned_and_left_out_of_log_probabilities(tmp_path):
+    """A dim with low == high (a wrist-only task's hand) is the env's, not the policy's: its mean is the fixed value,
+    it is never explored, and it adds nothing to log-probabilities or entropies; checkpoints keep the pin and a
+    model saved before pins existed still loads (every dim free)."""
+    env = TargetVectorEnv(num_envs=4, action_dim=3, seed=0)
+    env.single_action_space = gymnasium.spaces.Box(np.array([-1, 0.25, -1], np.float32),
+                                                   np.array([1, 0.25, 1], np.float32))
+    ppo = PPO.for_env(small_config(), env)
+    assert ppo.model.free_actions.tolist() == [True, False, True]
+    obs = torch.randn(64, 3)
+    actions, log_probs, means, _ = ppo.act(obs)
+    assert torch.all(actions[:, 1] == 0.25) and torch.all(means[:, 1] == 0.25)
+    assert actions[:, 0].std() > 0.1
+    normal = torch.distributions.Normal(means, ppo.model.log_std.exp())
+    expected = normal.log_prob(actions)[:, [0, 2]].sum(-1)
+    torch.testing.assert_close(log_probs, expected)
+    evaluated, entropy, _, _ = ppo.model.evaluate(obs, actions)
+    torch.testing.assert_close(evaluated, expected)
+    torch.testing.assert_close(entropy, normal.entropy()[:, [0, 2]].sum(-1))
+    ppo.save(tmp_path / "pinned.pt")
+    assert PPO.resume(tmp_path / "pinned.pt").model.free_actions.tolist() == [True, False, True]
+    state = {k: v for k, v in ActorCritic(3, 3, (8,), (8,)).state_dict().items() if k != "action_fixed"}
+    old = ActorCritic(3, 3, (8,), (8,))
+    old.load_state_dict(state)
+    assert bool(old.free_actions.all())

@@ -90,7 +90,13 @@ class SubtaskEnv(gym.Env):
         self.arm = self.plant.GetModelInstanceByName("franka")
         self.hand = self.plant.GetModelInstanceByName("allegro")
         self.R_WP_hold = self.ik.palm_pose(np.asarray(self.scenario.robot.arm_home)).rotation()
-        self.action_space = gym.spaces.Box(-1.0, 1.0, (ACTION_SIZE,), np.float32)
+        # A wrist-only task (``hand_actions=False``) pins the 16 hand dims to 0 (low == high): the hand is not the
+        # policy's to move, and learners skip dims with no range (rl.networks.ActorCritic ``fixed_actions``).
+        action_low = np.full(ACTION_SIZE, -1.0, np.float32)
+        action_high = np.full(ACTION_SIZE, 1.0, np.float32)
+        if not self.config.hand_actions:
+            action_low[:16] = action_high[:16] = 0.0
+        self.action_space = gym.spaces.Box(action_low, action_high, dtype=np.float32)
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, (assembler.size,), np.float32)
         self.target_object = ""
         self.goal = np.array([0, 0, 0, 1.0, 0, 0, 0])
@@ -212,6 +218,8 @@ class SubtaskEnv(gym.Env):
         if not np.all(np.isfinite(action)):
             return self.observation(), 0.0, False, True, {"nan_action": True, "success": False}
         action = np.clip(self.randomizer.perturb_action(action), -1.0, 1.0)  # DR hook: action noise
+        if not self.config.hand_actions:
+            action[:16] = 0.0  # Ignored; zeroed so the previous-action observation does not carry them.
         ema = self.config.ema
         if self.config.hand_actions:
             self._hand_target = ema * scale_action_to_limits(action[:16]) + (1 - ema) * self._hand_target

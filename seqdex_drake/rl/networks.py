@@ -9,6 +9,7 @@ in training. The critic may take a different (privileged) observation: pass ``cr
 import math
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -91,12 +92,17 @@ class ActorCritic(nn.Module):
         critic_obs_dim: size of the critic's input; ``None`` means the critic reads the actor's observation.
         normalize_observations: normalize inputs with running statistics (else the normalizers stay identity).
         observation_clip: clip range of normalized observations.
+        fixed_actions: per action dim, NaN for a dim the policy chooses, or the value of a dim it does not (an
+            action space whose low equals its high there, e.g. the hand of a wrist-only task). A fixed dim's mean
+            is that value and it is neither explored nor counted in log-probabilities and entropies: exploring
+            dims the env ignores only adds noise to the PPO ratio (16 of 19 dims for a wrist-only task).
     """
 
     def __init__(self, obs_dim: int, action_dim: int, actor_hidden_sizes: Sequence[int] = (1024, 1024, 512),
                  critic_hidden_sizes: Sequence[int] = (1024, 1024, 512), activation: str = "elu",
                  init_log_std: float = math.log(0.8), critic_obs_dim: int | None = None,
-                 normalize_observations: bool = True, observation_clip: float = 5.0):
+                 normalize_observations: bool = True, observation_clip: float = 5.0,
+                 fixed_actions: Sequence[float] | None = None):
         super().__init__()
         self.obs_dim, self.action_dim = obs_dim, action_dim
         self.critic_obs_dim = obs_dim if critic_obs_dim is None else critic_obs_dim
@@ -108,13 +114,29 @@ class ActorCritic(nn.Module):
         self.actor = mlp(obs_dim, actor_hidden_sizes, action_dim, activation, output_gain=0.01)
         self.critic = mlp(self.critic_obs_dim, critic_hidden_sizes, 1, activation, output_gain=1.0)
         self.log_std = nn.Parameter(torch.full((action_dim,), float(init_log_std)))
+        fixed = torch.full((action_dim,), math.nan) if fixed_actions is None else \
+            torch.as_tensor(np.asarray(fixed_actions, dtype=np.float32))
+        if fixed.shape != (action_dim,):
+            raise ValueError(f"fixed_actions must have {action_dim} entries, got {tuple(fixed.shape)}")
+        self.register_buffer("action_fixed", fixed)
 
     @classmethod
-    def from_config(cls, obs_dim: int, action_dim: int, config: PPOConfig,
-                    critic_obs_dim: int | None = None) -> "ActorCritic":
+    def from_config(cls, obs_dim: int, action_dim: int, config: PPOConfig, critic_obs_dim: int | None = None,
+                    fixed_actions: Sequence[float] | None = None) -> "ActorCritic":
         """The model that ``config`` describes."""
         return cls(obs_dim, action_dim, config.actor_hidden_sizes, config.critic_hidden_sizes, config.activation,
-                   config.init_log_std, critic_obs_dim, config.normalize_observations, config.observation_clip)
+                   config.init_log_std, critic_obs_dim, config.normalize_observations, config.observation_clip,
+                   fixed_actions)
+
+    @property
+    def free_actions(self) -> torch.Tensor:
+        """[A] bool: the action dims the policy chooses (the rest are fixed, see ``fixed_actions``)."""
+        return torch.isnan(self.action_fixed)
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        # Checkpoints written before fixed action dims existed have no ``action_fixed``: every dim was free.
+        state_dict.setdefault(prefix + "action_fixed", torch.full_like(self.action_fixed, math.nan))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     # -------------------------------------------------------------------------------- normalization
     def update_normalizer(self, obs: torch.Tensor, critic_obs: torch.Tensor | None = None) -> None:
@@ -140,7 +162,9 @@ class ActorCritic(nn.Module):
     # ------------------------------------------------------------------------------------- outputs
     def action_mean(self, obs: torch.Tensor) -> torch.Tensor:
         """The policy's mean action for raw observations [B, obs_dim] (the deterministic deployment action)."""
-        return self.actor(self._actor_input(obs))
+        mean = self.actor(self._actor_input(obs))
+        free = self.free_actions
+        return mean if bool(free.all()) else torch.where(free, mean, self.action_fixed.to(mean))
 
     def distribution(self, obs: torch.Tensor) -> torch.distributions.Normal:
         """The diagonal Gaussian policy for raw observations [B, obs_dim]."""
@@ -152,9 +176,10 @@ class ActorCritic(nn.Module):
         return self.critic(self._critic_input(obs, critic_obs)).squeeze(-1)
 
     def evaluate(self, obs: torch.Tensor, actions: torch.Tensor, critic_obs: torch.Tensor | None = None):
-        """Log-probabilities [B], entropies [B], values [B] and action means [B, A] for a batch of transitions."""
-        distribution = self.distribution(obs)
-        return (distribution.log_prob(actions).sum(-1), distribution.entropy().sum(-1),
+        """Log-probabilities [B], entropies [B], values [B] and action means [B, A] for a batch of transitions
+        (log-probabilities and entropies over the free action dims)."""
+        distribution, free = self.distribution(obs), self.free_actions
+        return ((distribution.log_prob(actions) * free).sum(-1), (distribution.entropy() * free).sum(-1),
                 self.value(obs, critic_obs), distribution.mean)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:

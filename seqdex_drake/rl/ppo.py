@@ -77,7 +77,11 @@ class PPO:
         self.obs_dim, self.action_dim = obs_dim, action_dim
         self.action_low = None if action_low is None else torch.as_tensor(action_low, dtype=torch.float32)
         self.action_high = None if action_high is None else torch.as_tensor(action_high, dtype=torch.float32)
-        self.model = ActorCritic.from_config(obs_dim, action_dim, config).to(self.device)
+        fixed = None
+        if action_low is not None and action_high is not None:  # Dims with low == high are not the policy's.
+            low, high = np.asarray(action_low, dtype=np.float32), np.asarray(action_high, dtype=np.float32)
+            fixed = np.where(low == high, low, np.nan)
+        self.model = ActorCritic.from_config(obs_dim, action_dim, config, fixed_actions=fixed).to(self.device)
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=config.learning_rate)
         self.generator = torch.Generator().manual_seed(config.seed)  # Action noise and minibatch shuffles.
         self.learning_rate = config.learning_rate
@@ -121,13 +125,13 @@ class PPO:
     def act(self, obs: torch.Tensor, deterministic: bool = False):
         """Actions [n, a] (sampled, or the mean), their log-probabilities [n], the means [n, a], values [n]."""
         means = self.model.action_mean(obs)
-        std = self.model.log_std.exp()
+        std, free = self.model.log_std.exp(), self.model.free_actions
         if deterministic:
             actions = means
         else:
             noise = torch.randn(means.shape, generator=self.generator).to(self.device)
-            actions = means + std * noise
-        log_probs = torch.distributions.Normal(means, std).log_prob(actions).sum(-1)
+            actions = means + std * noise * free  # Fixed dims stay at their value (see ActorCritic).
+        log_probs = (torch.distributions.Normal(means, std).log_prob(actions) * free).sum(-1)
         return actions, log_probs, means, self.model.value(obs)
 
     def _env_actions(self, actions: torch.Tensor) -> np.ndarray:

@@ -1,9 +1,11 @@
 """Reach (hand-over chain, stage 1): bring the hand centre over the block, in x-y only.
 
 Reset: an upright block on the table, the open hand's centre 0-4 cm away in x and y and 12-26 cm above the
-block. Reward: lambda1 exp(-alpha0 d_xy), d_xy the horizontal distance from the hand centre to the block (the
-action and torque penalties have zero weight: only the wrist acts); the height is deliberately not rewarded
-(see ``handover_common``). Success (at the episode's end, which is the hand-over): d_xy < 0.02 m.
+block. Reward: lambda1 exp(-alpha0 d_xy), d_xy the horizontal distance from the hand centre to the block, plus a
+small clearance term, w_c clip((h - 0.10) / 0.16, 0, 1) with h the hand centre's height above the block: hovering
+high keeps the fingers clear of the block (the action and torque penalties have zero weight: only the wrist acts).
+Reach's own reward thus prefers hand-over heights from which Lower cannot succeed (see ``handover_common``).
+Success (at the episode's end, which is the hand-over): d_xy < 0.02 m.
 """
 
 import numpy as np
@@ -17,11 +19,17 @@ def default_config() -> TaskConfig:
     return TaskConfig(
         name="reach", scenario="handover/reach", episode_length=30, ema=1.0,
         hand_actions=False, wrist_floor=WRIST_FLOOR,
-        reward=RewardWeights(progress=1.0, action=0.0, torque=0.0, alpha0=20.0),
+        reward=RewardWeights(progress=1.0, action=0.0, torque=0.0, alpha0=20.0, clearance=CLEARANCE_WEIGHT),
         # success_threshold: [horizontal distance of the hand centre to the block (m)]
         object_types=[1], success_threshold=[0.02],
         drop_height=0.3)
 
+
+#: Weight of the clearance term per step: at most 0.9 over an episode against up to 30 for x-y closeness, so it
+#: only decides the height, which x-y closeness ignores.
+CLEARANCE_WEIGHT = 0.03
+#: Heights (m, above the block) where the clearance term starts (Lower's goal) and saturates.
+CLEARANCE_LOW, CLEARANCE_HIGH = 0.10, 0.26
 
 #: Start offsets of the hand centre from the block (m): [low, high] per axis.
 START_LOW, START_HIGH = np.array([-0.04, -0.04, 0.12]), np.array([0.04, 0.04, 0.26])
@@ -38,8 +46,10 @@ class ReachTask(Task):
 
     def reward_terms(self, env, action):
         w = self.config.reward
+        height = float(hand_center(env)[2] - env.object_position()[2])
+        clearance = np.clip((height - CLEARANCE_LOW) / (CLEARANCE_HIGH - CLEARANCE_LOW), 0.0, 1.0)
         return {"xy_closeness": w.progress * float(np.exp(-w.alpha0 * self.xy_distance(env))),
-                **penalties(w, action, env.hand_torque())}
+                "clearance": w.clearance * float(clearance), **penalties(w, action, env.hand_torque())}
 
     def is_success(self, env) -> bool:
         return self.xy_distance(env) < self.config.success_threshold[0]

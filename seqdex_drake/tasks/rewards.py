@@ -34,6 +34,8 @@ class RewardWeights:
     """Position (Insert) or closeness (Grasp, magnitude) sharpness alpha_0."""
     alpha1: float = 1.0
     """Rotation sharpness alpha_1 (Insert)."""
+    clearance: float = 0.0
+    """Weight of the hover-clearance term (the hand-over chain's Reach only; not a paper term)."""
 
 
 def penalties(weights: RewardWeights, action: np.ndarray, hand_torque: np.ndarray) -> dict[str, float]:
