@@ -58,6 +58,8 @@ def run_seed(args, seed: int) -> None:
     directory = Path(args.run_root)
     pipelines = {}
     for method in ("policy_seq", *SHARED_FORWARD, "scratch", "curriculum"):
+        if method != "policy_seq" and method not in args.methods:  # Policy-Seq is the others' forward phase.
+            continue
         run_dir = directory / f"{method}_s{seed}"
         if (run_dir / "results.json").is_file():
             log(f"{method}: done earlier")
@@ -109,11 +111,17 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=1, help="seeds run at the same time (one process each)")
     parser.add_argument("--run-root", default=str(ROOT / "runs" / "chain_methods"))
     parser.add_argument("--out", default=str(ROOT / "results" / "chain_methods.md"))
+    parser.add_argument("--methods", type=lambda text: text.split(","), default=list(ORDER),
+                        help="comma-separated methods to run (default: all seven; policy_seq always runs, it is the "
+                             "shared forward phase), e.g. a lambda2 sweep of seqdex,seqdex_no_temporal,tstar,vchain")
     parser.add_argument("--report-only", action="store_true",
                         help="only tabulate the finished runs under --run-root (no training)")
     parser.add_argument("--only-seed", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--test", action="store_true", help="tiny budget, one seed, output under the run root")
     args = parser.parse_args()
+    unknown = sorted(set(args.methods) - set(ORDER))
+    if unknown:
+        parser.error(f"unknown methods {unknown}; known: {', '.join(ORDER)}")
     if args.test:
         args.seeds, args.jobs = 1, 1
         args.out = str(Path(args.run_root) / "chain_methods_test.md")

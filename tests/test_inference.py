@@ -67,8 +67,6 @@ def test_policy_snapshot_equals_torch_action_mean(activation, normalize):
 
 def test_policy_snapshot_keeps_fixed_action_dims():
     model = random_actor()
-    if not hasattr(model, "action_fixed"):
-        pytest.skip("this ActorCritic has no fixed action dims")
     fixed = np.full(19, np.nan, dtype=np.float32)
     fixed[:16] = np.linspace(-0.5, 0.5, 16)
     with torch.no_grad():
