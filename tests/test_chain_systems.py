@@ -136,10 +136,10 @@ def hand_built_f(history: int = 3):
 class SwitcherRig:
     """A 4-stage switcher whose F^i reads observation.<i-1>[0]; ``set(c1, c2, c3)`` fixes the scores."""
 
-    def __init__(self, max_switches=3, missing=(), budgets=(5, 5, 5, 5), every_tick=False):
+    def __init__(self, max_switches=3, missing=(), budgets=(5, 5, 5, 5), every_tick=False, trigger="next"):
         fs = [None] + [None if i in missing else hand_built_f() for i in (1, 2, 3)]
-        self.switcher = FeasibilitySwitcher(fs, [2] * 4, budgets, PERIOD,
-                                            SwitcherParams(max_switches, evaluate_every_tick=every_tick))
+        self.switcher = FeasibilitySwitcher(fs, [2] * 4, budgets, PERIOD, SwitcherParams(
+            max_switches, evaluate_every_tick=every_tick, trigger=trigger))
         self.context = self.switcher.CreateDefaultContext()
         self.missing = missing
         self.set(0, 0, 0)
@@ -179,7 +179,7 @@ def test_fast_score_equals_chaining_score():
 def test_switcher_forward_bypass_recovery_restart():
     rig = SwitcherRig()
     assert rig.run() == (0, 0)
-    np.testing.assert_allclose(rig.scores(), [np.nan, 0, 0, 0])
+    np.testing.assert_allclose(rig.scores(), [np.nan, 0, np.nan, np.nan])  # Between decisions: c^{i+1} only.
     rig.set(2.0, 0.0, 0.0)
     assert rig.run() == (1, 1)  # forward: c^1 > 1
     rig.set(0.5, 3.0, 0.0)
@@ -209,7 +209,7 @@ def test_switcher_cap_zero_is_sequential_and_history_is_kept():
 
 
 def test_switcher_cap_and_missing_f_fall_back_to_sequential():
-    rig = SwitcherRig(max_switches=1, budgets=(4, 4, 4, 4))
+    rig = SwitcherRig(max_switches=1, budgets=(4, 4, 4, 4), trigger="any_later")
     rig.set(0.0, 0.0, 3.0)
     assert rig.run() == (3, 1)  # one feasibility switch (straight to the last stage) ...
     rig.set(0.0, 0.0, 0.0)
@@ -225,6 +225,21 @@ def test_switcher_cap_and_missing_f_fall_back_to_sequential():
     rig.set(3.0, 0.0, 0.0)
     assert rig.run(5) == (0, 0)
     assert rig.scores()[1] == 3.0
+
+
+def test_switcher_trigger_next_waits_for_the_budget_when_only_a_later_stage_is_feasible():
+    """The paper's switch timing scores only c^{i+1} each tick; the full walk back happens at a decision."""
+    rig = SwitcherRig(budgets=(4, 4, 4, 4))
+    rig.set(0.0, 0.0, 3.0)
+    assert rig.run(3) == (0, 0)  # c^1 <= 1: no decision, c^3 not even computed
+    assert np.isnan(rig.scores()[3])
+    assert rig.run() == (3, 1)  # budget used up: the walk back finds the last stage
+    assert rig.scores()[3] == 3.0
+    rig = SwitcherRig(budgets=(4, 4, 4, 4), trigger="any_later")
+    rig.set(0.0, 0.0, 3.0)
+    assert rig.run() == (3, 1)
+    with pytest.raises(ValueError, match="trigger"):
+        SwitcherRig(trigger="sometimes")
 
 
 def test_switcher_every_tick_mode_counts_changes_only():

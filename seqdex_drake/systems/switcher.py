@@ -5,16 +5,19 @@ the paper's F^{i+1}: it scores the last H observations *in stage i-1's layout* a
 return; its score is c^i = F^i(history) / h^i. Stage 0 never has one.
 
 Every control tick the switcher appends each needed observation to a history kept as discrete state (the last
-H observations per stage layout; shorter histories are left-padded by ``pad_history`` inside the model), computes
-every available c^i (output ``feasibility_scores``, NaN where a stage has no F) and advances the executing
-stage's step counter. A *decision* happens when
+H observations per stage layout; shorter histories are left-padded by ``pad_history`` inside the model),
+computes the scores its trigger needs and advances the executing stage's step counter. As the paper describes
+it, only the next stage's score c^{i+1} is computed every tick (``SwitcherParams.trigger = "next"``); with
+``trigger = "any_later"`` every later stage's is. A *decision* happens when
 
-- the next stage's score c^{i+1}, or any later stage's, exceeds 1 (the paper's switch timing), or
+- a computed later score exceeds 1 (the paper's switch timing: c^{i+1} > 1), or
 - the executing stage's step budget is used up, or the optional ``stage_success`` input is above 0.5, or
-- every tick, with ``evaluate_every_tick`` (the paper's "at each time step", literally).
+- every tick, with ``evaluate_every_tick`` (every score every tick).
 
-At a decision, while fewer than ``max_switches`` feasibility switches have been made, the switcher walks back
-from the last stage and selects the first stage with c > 1; if none has, it restarts from stage 0. This is a
+At a decision, while fewer than ``max_switches`` feasibility switches have been made, the switcher computes every
+c^i from the same histories, walks back from the last stage and selects the first stage with c > 1; if none has,
+it restarts from stage 0. Output ``feasibility_scores`` holds each c^i as last computed (NaN where a stage has no
+F, or before its first computation). This is a
 feasibility switch: it counts one towards ``max_switches`` and restarts the selected stage's budget (with
 ``evaluate_every_tick`` only a change of stage counts). Otherwise -- the cap is reached, ``max_switches = 0``,
 or the stage after the current one has no F (for the last stage: its own F; an untrained pipeline: the
@@ -71,6 +74,10 @@ class SwitcherParams:
     """Step budget (control ticks) per stage; None: each task's ``TaskConfig.episode_length``."""
     evaluate_every_tick: bool = False
     """Walk the scores every tick (a change of stage counts as a switch) instead of at decision points."""
+    trigger: str = "next"
+    """Scores computed every tick between decisions: "next" (c^{i+1} only, the paper's switch timing) or
+    "any_later" (every later stage's, so a later stage becoming feasible also triggers a decision; costs one F
+    per later stage per tick)."""
     inference: str = "numpy"
     """"numpy": evaluate torch F's from float32 numpy snapshots (fast at batch 1); "torch": the models themselves."""
 
@@ -117,6 +124,8 @@ class FeasibilitySwitcher(LeafSystem):
             raise ValueError(f"every stage step budget must be at least 1 tick, got {budgets}")
         if params.max_switches < 0:
             raise ValueError(f"max_switches must be >= 0, got {params.max_switches}")
+        if params.trigger not in ("next", "any_later"):
+            raise ValueError(f"trigger must be 'next' or 'any_later', got {params.trigger!r}")
         if params.inference not in ("numpy", "torch"):
             raise ValueError(f"inference must be 'numpy' or 'torch', got {params.inference!r}")
         self._budgets = np.asarray(budgets, dtype=int)
@@ -201,10 +210,19 @@ class FeasibilitySwitcher(LeafSystem):
         return self._bank.snapshots[self._bank_stages.index(stage)](history) / float(f.threshold)
 
     # ----------------------------------------------------------------------------------------- decision
+    def tick_stages(self, stage: int) -> list[int]:
+        """The stages whose scores are computed on a tick between decisions while ``stage`` executes."""
+        if self._params.evaluate_every_tick:
+            return list(range(1, self.num_stages))
+        if self._params.trigger == "any_later":
+            return list(range(stage + 1, self.num_stages))
+        return [stage + 1] if stage + 1 < self.num_stages else [stage]  # The last stage: its own F.
+
     def decide(self, stage: int, steps: int, switches: int, scores: np.ndarray,
-               success: bool) -> tuple[int, bool, bool]:
+               success: bool, full_scores=None) -> tuple[int, bool, bool]:
         """The rule of the module docstring: (next stage, whether the stage restarts its clock, whether the
-        decision is a feasibility switch)."""
+        decision is a feasibility switch). ``scores`` are this tick's (at least :meth:`tick_stages`');
+        ``full_scores()``, when given, returns every stage's for the walk back (default: ``scores``)."""
         last = self.num_stages - 1
         budget_done = success or steps >= self._budgets[stage]
         may_switch = switches < self._params.max_switches
@@ -212,7 +230,7 @@ class FeasibilitySwitcher(LeafSystem):
         judged = self._feasibility[min(stage + 1, last)] is not None
         forward = judged and bool(np.any(scores[stage + 1:] > 1.0))  # a later stage is feasible (NaN is not)
         if may_switch and judged and (forward or budget_done):
-            return walk_back(scores), True, True
+            return walk_back(scores if full_scores is None else full_scores()), True, True
         if may_switch and judged and self._params.evaluate_every_tick:
             target = walk_back(scores)
             if target != stage:
@@ -228,24 +246,44 @@ class FeasibilitySwitcher(LeafSystem):
         discrete_state.set_value(self._status_index, np.zeros(3))
         discrete_state.set_value(self._scores_index, np.full(self.num_stages, np.nan))
 
-    def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
-        histories = {stage: self._append(context, discrete_state, stage) for stage in self._history_index}
-        scores = np.full(self.num_stages, np.nan)
-        if self._bank_stages:
+    def _compute(self, histories: dict, stages: Sequence[int], scores: np.ndarray) -> None:
+        """Writes c^i of ``stages`` (those with an F) into ``scores``; bank F's in one batched pass when all of
+        them are asked for, one by one otherwise."""
+        stages = [stage for stage in stages if self._feasibility[stage] is not None]
+        banked = [stage for stage in stages if stage in self._bank_stages]
+        if banked and len(banked) == len(self._bank_stages) > 1:
             values = self._bank_values([histories[stage - 1] for stage in self._bank_stages])
             scores[self._bank_stages] = values / [float(self._feasibility[i].threshold) for i in self._bank_stages]
-        for stage in range(1, self.num_stages):
-            f = self._feasibility[stage]
-            if f is not None and stage not in self._bank_stages:
-                scores[stage] = feasibility_score(f, histories[stage - 1])
-        discrete_state.set_value(self._scores_index, scores)
+        else:
+            for stage in banked:
+                scores[stage] = self.score(stage, histories[stage - 1])
+        for stage in stages:
+            if stage not in self._bank_stages:
+                scores[stage] = feasibility_score(self._feasibility[stage], histories[stage - 1])
+
+    def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
+        histories = {stage: self._append(context, discrete_state, stage) for stage in self._history_index}
         status = context.get_discrete_state(self._status_index).get_value().copy()
-        if self._approach_port.HasValue(context) and self._approach_port.Eval(context)[0] > 0.5:
-            discrete_state.set_value(self._status_index, status)
-            return
         stage, steps, switches = int(status[_STAGE]), int(status[_STEPS]) + 1, int(status[_SWITCHES])
-        success = self._success_port.HasValue(context) and self._success_port.Eval(context)[0] > 0.5
-        target, restart, switched = self.decide(stage, steps, switches, scores, bool(success))
+        fresh = np.full(self.num_stages, np.nan)  # This tick's scores; NaN where not computed (or no F).
+        computed = self.tick_stages(stage)
+        self._compute(histories, computed, fresh)
+
+        def full_scores() -> np.ndarray:
+            self._compute(histories, [i for i in range(1, self.num_stages) if i not in computed], fresh)
+            computed[:] = range(1, self.num_stages)
+            return fresh
+
+        approaching = self._approach_port.HasValue(context) and self._approach_port.Eval(context)[0] > 0.5
+        if approaching:
+            target, restart, switched = stage, False, False
+            steps -= 1  # The stage clock stops while the OSC approaches.
+        else:
+            success = self._success_port.HasValue(context) and self._success_port.Eval(context)[0] > 0.5
+            target, restart, switched = self.decide(stage, steps, switches, fresh, bool(success), full_scores)
+        scores = context.get_discrete_state(self._scores_index).get_value().copy()
+        scores[computed] = fresh[computed]  # The others keep their last computed values.
+        discrete_state.set_value(self._scores_index, scores)
         discrete_state.set_value(self._status_index, np.array(
             [target, 0 if restart else steps, switches + int(switched)], dtype=float))
 
