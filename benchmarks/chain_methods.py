@@ -29,6 +29,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+#: Lower can reach its goal (10 cm above the block) in its 10 steps from at most this height (m), measured with a
+#: scripted straight-down policy from Lower's standalone starts (about 4 cm of travel).
+LOWER_REACH = 0.145
+HEIGHT_SEED = 50_000
 SHARED_FORWARD = ("seqdex", "seqdex_no_temporal", "tstar", "vchain")
 ORDER = ("seqdex", "seqdex_no_temporal", "tstar", "policy_seq", "vchain", "curriculum", "scratch")
 LABELS = {"seqdex": "Ours", "seqdex_no_temporal": "Ours w/o temporal", "tstar": "T-STAR", "policy_seq": "Policy-Seq",
@@ -76,6 +80,31 @@ def run_seed(args, seed: int) -> None:
             f"{results['wall_clock_s']:.0f} s")
 
 
+def handover_heights(run_dir: Path, episodes: int = 20) -> dict | None:
+    """Where the run's final Reach policy hands over: its deterministic episodes' mean hand-centre height above
+    the block (cm) and the fraction that ends with x-y success *and* at most 14.5 cm high, where Lower's 10 steps
+    can reach its goal (``tasks/handover_common``). Cached in the run directory; None for single-policy methods."""
+    cache, policy = run_dir / "handover_heights.json", run_dir / "stages" / "reach" / "last.pt"
+    if cache.is_file():
+        return json.loads(cache.read_text())
+    if not policy.is_file():
+        return None
+    from seqdex_drake.chaining.rollouts import deterministic_policy, run_stage
+    from seqdex_drake.rl.ppo import PPO
+    from seqdex_drake.tasks.handover_common import hand_center
+    from seqdex_drake.tasks.registry import make_env
+
+    env, act = make_env("reach"), deterministic_policy(PPO.resume(policy))
+    heights, usable = [], []
+    for episode in range(episodes):
+        result = run_stage(env, act, seed=HEIGHT_SEED + episode)
+        heights.append(float(hand_center(env)[2] - env.object_position()[2]))
+        usable.append(result.success and heights[-1] <= LOWER_REACH)
+    value = {"height_cm": 100 * float(np.mean(heights)), "usable": float(np.mean(usable)), "episodes": episodes}
+    cache.write_text(json.dumps(value))
+    return value
+
+
 def _table(args) -> tuple[str, dict]:
     rows, summary = [], {}
     seeds = range(args.seed, args.seed + args.seeds)
@@ -88,15 +117,33 @@ def _table(args) -> tuple[str, dict]:
         switcher = [r["success_rate_switcher"] for r in results if r["success_rate_switcher"] is not None]
         seconds = np.array([r["wall_clock_s"] for r in results])
         steps = results[0]["ppo_steps"]
+        heights = [h for h in (handover_heights(Path(args.run_root) / f"{method}_s{s}") for s in seeds
+                               if (Path(args.run_root) / f"{method}_s{s}" / "results.json").is_file()) if h]
         summary[method] = {"success_mean": float(success.mean()), "success_std": float(success.std()),
                            "switcher_mean": float(np.mean(switcher)) if switcher else None,
+                           "handover_height_cm": float(np.mean([h["height_cm"] for h in heights])) if heights else None,
+                           "handover_usable": float(np.mean([h["usable"] for h in heights])) if heights else None,
                            "ppo_steps": steps, "wall_clock_s_mean": float(seconds.mean()), "seeds": len(results)}
         switch_text = f"{np.mean(switcher):.2f} ± {np.std(switcher):.2f}" if switcher else "–"
-        rows.append(f"| {LABELS[method]} | {success.mean():.2f} ± {success.std():.2f} | {switch_text} | {steps} | "
-                    f"{seconds.mean():.0f} | {len(results)} |")
-    header = ("| Method | Chain success (sequential) | With the switcher (≤ 3 switches) | PPO steps | Wall-clock "
-              "(s, mean) | Seeds |\n|---|---|---|---|---|---|")
+        height_text = (f"{np.mean([h['height_cm'] for h in heights]):.1f} | "
+                       f"{np.mean([h['usable'] for h in heights]):.2f}") if heights else "– | –"
+        rows.append(f"| {LABELS[method]} | {success.mean():.2f} ± {success.std():.2f} | {switch_text} | "
+                    f"{height_text} | {steps} | {seconds.mean():.0f} | {len(results)} |")
+    header = ("| Method | Chain success (sequential) | With the switcher (≤ 3 switches) | Reach hand-over height "
+              "(cm) | Usable hand-overs | PPO steps | Wall-clock (s, mean) | Seeds |\n" + "|---" * 8 + "|")
     return header + "\n" + "\n".join(rows), summary
+
+
+def _child_arguments(argv: list[str]) -> list[str]:
+    """``argv`` without ``--jobs N`` / ``--jobs=N`` and ``--report-only``: what a per-seed process (and a rerun of
+    the whole table) takes."""
+    flags, skip = [], False
+    for argument in argv:
+        if skip or argument.startswith("--jobs") or argument == "--report-only":
+            skip = argument == "--jobs" and not skip
+            continue
+        flags.append(argument)
+    return flags
 
 
 def main() -> None:
@@ -135,12 +182,7 @@ def main() -> None:
         for seed in seeds:
             run_seed(args, seed)
     else:
-        flags, skip = [], False
-        for argument in sys.argv[1:]:  # Everything but --jobs N / --jobs=N goes to the per-seed processes.
-            if skip or argument.startswith("--jobs"):
-                skip = argument == "--jobs" and not skip
-                continue
-            flags.append(argument)
+        flags = _child_arguments(sys.argv[1:])
         pending = list(seeds)
         running = []
         while pending or running:
@@ -155,9 +197,13 @@ def main() -> None:
     budget = "tiny (--test)" if args.test else (f"stage_steps {args.stage_steps}, finetune_steps "
                                                  f"{args.finetune_steps}, transition_episodes "
                                                  f"{args.transition_episodes}, eval_episodes {args.eval_episodes}")
-    text = (f"# Chaining methods on the hand-over chain (reach -> lower)\n\nMade by `python benchmarks/chain_methods.py"
-            f"{' --test' if args.test else ''}` ({len(seeds)} seeds asked; {budget}; the Seeds column says how many "
-            f"finished).\n\n{table}\n")
+    command = " ".join(["python benchmarks/chain_methods.py", *_child_arguments(sys.argv[1:])])
+    text = (f"# Chaining methods on the hand-over chain (reach -> lower)\n\nMade by `{command}` ({len(seeds)} seeds "
+            f"asked; {budget}, lambda2 {args.lambda2}; the Seeds column says how many finished). Reach hand-over "
+            f"height: the final Reach policy's mean hand-centre height above the block at the hand-over over "
+            f"{20} deterministic episodes per seed; usable hand-overs: the fraction with x-y success at most "
+            f"{100 * LOWER_REACH:.1f} cm high, from where Lower's 10 steps reach its goal (single-policy methods: "
+            f"–).\n\n{table}\n")
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(text)
     print(text)
