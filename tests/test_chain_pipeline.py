@@ -2,6 +2,7 @@
 resume, the feasibility and finetune subcommands, the chain env, and bad input. Everything runs in this process
 (the serial backend), so the stations are built once and shared by all runs."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -120,3 +121,27 @@ def test_chain_env_hands_over_at_each_stage_budget():
     assert info["stage"] == 1 and isinstance(info["success"], bool)
     observation, info = env.reset(seed=3, options={"start_stage": 1})
     assert info["stage"] == 1 and observation[160] == 1
+
+
+def test_tstar_without_positive_examples_pays_no_transition_reward(runs, tmp_path):
+    """When no Lower execution succeeded from Reach's hand-overs the discriminator has nothing to separate: T-STAR
+    then fine-tunes on Reach's own reward (a zero bonus, logged) instead of failing the whole comparison."""
+    import shutil
+
+    from seqdex_drake.chaining.bidirectional import Pipeline
+
+    run_dir = tmp_path / "tstar"
+    shutil.copytree(runs / "tstar", run_dir)
+    record = json.loads((run_dir / "pipeline.json").read_text())
+    del record["done"]["bonus_1_lower"]
+    (run_dir / "pipeline.json").write_text(json.dumps(record))
+    with np.load(run_dir / "transitions" / "lower.npz") as data:
+        arrays = {key: data[key] for key in data.files}
+    arrays["successes"][:] = False
+    np.savez(run_dir / "transitions" / "lower.npz", **arrays)
+    pipeline = Pipeline.open(run_dir, log=lambda message: None)
+    pipeline.config = dataclasses.replace(pipeline.config, handoff_failures=False)
+    bonus = pipeline.transition_bonus("bonus_1_lower", 1)
+    assert bonus(arrays["histories"][0]) == 0.0
+    assert not (run_dir / "tstar" / "lower.pt").exists()
+    assert json.loads((run_dir / "pipeline.json").read_text())["done"]["bonus_1_lower"]["positives"] == 0

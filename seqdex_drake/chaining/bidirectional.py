@@ -282,16 +282,20 @@ class Pipeline:
                 positive = last[torch.as_tensor(data["successes"])]
                 if len(positive) == 0 and self.config.handoff_failures:
                     positive = last
-                if len(positive) == 0:
-                    raise RuntimeError(f"T-STAR: no {target} execution succeeded from {source}'s terminal states, "
-                                       f"so its discriminator has no positive examples; train {target} longer")
+                if len(positive) == 0:  # Nothing to tell apart: no discriminator, a zero bonus (said loudly).
+                    self.log(f"warning: T-STAR: no {target} execution succeeded from {source}'s terminal states, so "
+                             f"its discriminator has no positive examples; the transition reward is 0 (fine-tuning "
+                             f"{source} on its own reward). Train {target} longer for a real T-STAR run.")
+                    self.run.tstar(target).unlink(missing_ok=True)
+                    return {"positives": 0}
                 discriminator.fit_normalizer(last)
                 for _ in range(self.config.tstar_steps):
                     losses = discriminator.train_step(positive, last)
                 payload = io.BytesIO()
                 torch.save(discriminator.training_state(), payload)
                 atomic_write(self.run.tstar(target), lambda file: file.write(payload.getvalue()))
-                outcome.update(accuracy=discriminator.accuracy(positive, last), loss=losses["loss"])
+                outcome.update(positives=len(positive), accuracy=discriminator.accuracy(positive, last),
+                               loss=losses["loss"])
             return outcome
 
         self._timed(phase, work)
@@ -299,6 +303,8 @@ class Pipeline:
             model = load_feasibility(self.run.feasibility(target)).model
             return model.predict
         if method == "tstar":
+            if not self.run.tstar(target).is_file():  # No positive examples (see above): no transition reward.
+                return lambda history: 0.0
             state = torch.load(self.run.tstar(target), weights_only=False)
             discriminator = TStarDiscriminator.from_training_state(state)
             return lambda history: float(discriminator.transition_reward(history[-1:])[0])
