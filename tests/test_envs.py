@@ -132,3 +132,20 @@ def test_restoring_a_hand_off_state_sets_the_tasks_start_values():
     grasp.reset(seed=3)
     grasp.reset(options={"initial_state": grasp_state})
     assert grasp.task.start_height == pytest.approx(grasp.object_position()[2])
+
+
+def test_reach_clearance_term_follows_the_hand_height():
+    import dataclasses
+
+    from seqdex_drake.tasks.handover_common import hand_center
+    from seqdex_drake.tasks.reach import CLEARANCE_HIGH, CLEARANCE_LOW
+
+    config = default_config("reach")
+    assert config.reward.clearance == 0.0  # Off by default: Reach's reward ignores the height.
+    config = dataclasses.replace(config, reward=dataclasses.replace(config.reward, clearance=0.5))
+    env = make_env("reach", config)
+    env.reset(seed=2)
+    _, _, _, _, info = env.step(np.zeros(19))
+    height = hand_center(env)[2] - env.object_position()[2]
+    expected = 0.5 * np.clip((height - CLEARANCE_LOW) / (CLEARANCE_HIGH - CLEARANCE_LOW), 0.0, 1.0)
+    assert 0.0 < expected and info["reward/clearance"] == pytest.approx(expected)

@@ -1,12 +1,12 @@
 """The hand-over chain (Reach, then Lower): a cheap two-stage chain on the full station, for method comparisons.
 
 Both stages run in the ``handover/*`` scene (the Franka + Allegro, the table, one block) and share one plant, so
-Reach's terminal states restore exactly into Lower. The chain is built so that Reach's own reward works against
-a state dimension that decides Lower's success: Reach is rewarded for bringing the hand centre over the block in
-x-y, and a little for hovering high (clearance); Lower must then bring it to a point 10 cm above the block within
-a few steps, which only works when Reach left the hand low enough (about 15 cm or lower). Forward initialization
-alone (Policy-Seq) inherits the heights Reach's own reward prefers; backward fine-tuning with the feasibility
-function has to teach Reach to end low, trading a little clearance for Lower's success.
+Reach's terminal states restore exactly into Lower. The chain is built so that Reach's own reward ignores a
+state dimension that decides Lower's success: Reach is rewarded for bringing the hand centre over the block in
+x-y only (its optional clearance term has weight 0 by default); Lower must then bring it to a point 10 cm above
+the block within a few steps, which only works when Reach left the hand low enough (about 14.5 cm or lower).
+Forward initialization alone (Policy-Seq) inherits Reach's arbitrary heights; backward fine-tuning with the
+feasibility function should teach Reach to end low.
 
 The hand centre (``p_PalmHc_Palm``) is the point the wrist action moves; heights are above the block's position
 (``env.object_position()``, 2.9 cm above the table for block type 1). Only the wrist acts

@@ -1,10 +1,10 @@
 """Reach (hand-over chain, stage 1): bring the hand centre over the block, in x-y only.
 
 Reset: an upright block on the table, the open hand's centre 0-4 cm away in x and y and 12-26 cm above the
-block. Reward: lambda1 exp(-alpha0 d_xy), d_xy the horizontal distance from the hand centre to the block, plus a
-small clearance term, w_c clip((h - 0.10) / 0.16, 0, 1) with h the hand centre's height above the block: hovering
-high keeps the fingers clear of the block (the action and torque penalties have zero weight: only the wrist acts).
-Reach's own reward thus prefers hand-over heights from which Lower cannot succeed (see ``handover_common``).
+block. Reward: lambda1 exp(-alpha0 d_xy), d_xy the horizontal distance from the hand centre to the block, plus an
+optional clearance term, w_c clip((h - 0.10) / 0.16, 0, 1) with h the hand centre's height above the block (w_c =
+``CLEARANCE_WEIGHT``, 0 by default: the height is then ignored; see ``handover_common``). The action and torque
+penalties have zero weight: only the wrist acts.
 Success (at the episode's end, which is the hand-over): d_xy < 0.02 m.
 """
 
@@ -25,9 +25,11 @@ def default_config() -> TaskConfig:
         drop_height=0.3)
 
 
-#: Weight of the clearance term per step: at most 0.9 over an episode against up to 30 for x-y closeness, so it
-#: only decides the height, which x-y closeness ignores.
-CLEARANCE_WEIGHT = 0.03
+#: Weight of the clearance term per step. 0 by default: Reach's reward then ignores the height, so its hand-over
+#: heights vary and F sees both usable and unusable ones (the design the method comparison needs). 0.03 (at most
+#: 0.9 per episode against up to 30 for x-y closeness) makes Reach prefer high hand-overs that Lower cannot use;
+#: ``results/chain_methods_clearance.md`` was measured that way (commit a4cc492), and F then never saw a usable one.
+CLEARANCE_WEIGHT = 0.0
 #: Heights (m, above the block) where the clearance term starts (Lower's goal) and saturates.
 CLEARANCE_LOW, CLEARANCE_HIGH = 0.10, 0.26
 
