@@ -218,11 +218,11 @@ class SubtaskEnv(gym.Env):
         if not np.all(np.isfinite(action)):
             return self.observation(), 0.0, False, True, {"nan_action": True, "success": False}
         action = np.clip(self.randomizer.perturb_action(action), -1.0, 1.0)  # DR hook: action noise
-        if not self.config.hand_actions:
-            action[:16] = 0.0  # Ignored; zeroed so the previous-action observation does not carry them.
-        ema = self.config.ema
         if self.config.hand_actions:
+            ema = self.config.ema
             self._hand_target = ema * scale_action_to_limits(action[:16]) + (1 - ema) * self._hand_target
+        else:
+            action[:16] = 0.0  # Ignored; zeroed so the previous-action observation does not carry them.
         # Integrate the wrist command from the previous *target*, not the measured arm: with a payload the
         # PD controller sags a little, and re-targeting from the measurement would turn that sag into drift.
         p_WC = self.ik.palm_pose(self._arm_target).translation() + self.config.wrist_step * action[16:]

@@ -194,20 +194,18 @@ class FeasibilitySwitcher(LeafSystem):
         if self._bank_stages:
             self._bank = FeasibilityBank([self._feasibility[stage].model for stage in self._bank_stages])
 
-    def _bank_values(self, histories: list[np.ndarray]) -> np.ndarray:
-        """F of every bank stage (in ``_bank_stages`` order) for their (T, obs_dim) histories."""
-        if self._bank.stale():  # A model's weights changed in place since the snapshots.
+    def _current_bank(self) -> FeasibilityBank:
+        """The snapshots, rebuilt first if a model's weights changed in place since they were taken."""
+        if self._bank.stale():
             self._build_bank()
-        return self._bank(histories)
+        return self._bank
 
     def score(self, stage: int, history: np.ndarray) -> float:
         """c^stage = F^stage(history) / h^stage for a (T, obs_dim) history of stage ``stage - 1``'s layout."""
         f = self._feasibility[stage]
         if stage not in self._bank_stages:
             return feasibility_score(f, history)
-        if self._bank.stale():
-            self._build_bank()
-        return self._bank.snapshots[self._bank_stages.index(stage)](history) / float(f.threshold)
+        return self._current_bank().snapshots[self._bank_stages.index(stage)](history) / float(f.threshold)
 
     # ----------------------------------------------------------------------------------------- decision
     def tick_stages(self, stage: int) -> list[int]:
@@ -250,21 +248,17 @@ class FeasibilitySwitcher(LeafSystem):
         """Writes c^i of ``stages`` (those with an F) into ``scores``; bank F's in one batched pass when all of
         them are asked for, one by one otherwise."""
         stages = [stage for stage in stages if self._feasibility[stage] is not None]
-        banked = [stage for stage in stages if stage in self._bank_stages]
-        if banked and len(banked) == len(self._bank_stages) > 1:
-            values = self._bank_values([histories[stage - 1] for stage in self._bank_stages])
+        if len(self._bank_stages) > 1 and set(self._bank_stages) <= set(stages):
+            values = self._current_bank()([histories[stage - 1] for stage in self._bank_stages])
             scores[self._bank_stages] = values / [float(self._feasibility[i].threshold) for i in self._bank_stages]
-        else:
-            for stage in banked:
-                scores[stage] = self.score(stage, histories[stage - 1])
+            stages = [stage for stage in stages if stage not in self._bank_stages]
         for stage in stages:
-            if stage not in self._bank_stages:
-                scores[stage] = feasibility_score(self._feasibility[stage], histories[stage - 1])
+            scores[stage] = self.score(stage, histories[stage - 1])
 
     def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
         histories = {stage: self._append(context, discrete_state, stage) for stage in self._history_index}
         status = context.get_discrete_state(self._status_index).get_value().copy()
-        stage, steps, switches = int(status[_STAGE]), int(status[_STEPS]) + 1, int(status[_SWITCHES])
+        stage, steps, switches = int(status[_STAGE]), int(status[_STEPS]), int(status[_SWITCHES])
         fresh = np.full(self.num_stages, np.nan)  # This tick's scores; NaN where not computed (or no F).
         computed = self.tick_stages(stage)
         self._compute(histories, computed, fresh)
@@ -275,10 +269,10 @@ class FeasibilitySwitcher(LeafSystem):
             return fresh
 
         approaching = self._approach_port.HasValue(context) and self._approach_port.Eval(context)[0] > 0.5
-        if approaching:
+        if approaching:  # The stage clock stops and nothing is decided while the OSC approaches.
             target, restart, switched = stage, False, False
-            steps -= 1  # The stage clock stops while the OSC approaches.
         else:
+            steps += 1
             success = self._success_port.HasValue(context) and self._success_port.Eval(context)[0] > 0.5
             target, restart, switched = self.decide(stage, steps, switches, fresh, bool(success), full_scores)
         scores = context.get_discrete_state(self._scores_index).get_value().copy()
