@@ -102,7 +102,21 @@ def test_bad_input(runs, tmp_path, capsys):
 def test_budget_formula():
     from seqdex_drake.chaining.pipeline import PipelineConfig
 
-    assert pipeline_budget(PipelineConfig(stage_steps=10, finetune_steps=3, iterations=2), 4) == 4 * 10 + 2 * 3 * 3
+    assert pipeline_budget(PipelineConfig(stage_steps=10, finetune_steps=3, iterations=2), 4) == 4 * 10 + 3 * 3 * 3
+
+
+def test_a_second_pass_runs_the_forward_step_again_then_fine_tunes(tmp_path):
+    """Algorithm 1 with M = 2: pass 2 re-collects rho_lower from the fine-tuned Reach, trains Lower further on it,
+    then fine-tunes Reach again with a refitted F; the budget counts every phase."""
+    assert main(["pipeline", "--chain", "handover", "--method", "seqdex", "--test", "--iterations", "2",
+                 "--run-dir", str(tmp_path / "m2")]) == 0
+    results = json.loads((tmp_path / "m2" / "results.json").read_text())
+    order = [phase for phase in results["phases"] if not phase.startswith(("transitions_", "bonus_"))]
+    assert order == ["forward_0_reach", "buffer_0_reach", "forward_1_lower", "finetune_1_reach", "buffer_1_reach",
+                     "reforward_2_lower", "finetune_2_reach"]
+    assert results["ppo_steps"] == results["ppo_budget"] == 2 * 64 + 3 * 32
+    assert results["phases"]["reforward_2_lower"]["steps"] == 32
+    assert "bonus_2_lower" in results["phases"] and "transitions_bonus_2_lower" in results["phases"]
 
 
 def test_chain_env_hands_over_at_each_stage_budget():
@@ -112,12 +126,12 @@ def test_chain_env_hands_over_at_each_stage_budget():
     env = ChainEnv(["reach", "lower"])
     observation, info = env.reset(seed=3)
     assert observation.shape == (159 + 2,) and observation[159] == 1 and info["stage"] == 0
-    for step in range(1, 41):
+    for step in range(1, 46):  # Reach 30 steps, Lower 15.
         observation, reward, terminated, truncated, info = env.step(np.zeros(19))
         assert np.isfinite(reward) and not terminated
         if step == 30:
             assert info["handover"] and observation[160] == 1 and observation[159] == 0
-        assert truncated == (step == 40)
+        assert truncated == (step == 45)
     assert info["stage"] == 1 and isinstance(info["success"], bool)
     observation, info = env.reset(seed=3, options={"start_stage": 1})
     assert info["stage"] == 1 and observation[160] == 1

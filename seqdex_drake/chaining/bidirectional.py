@@ -333,23 +333,28 @@ class Pipeline:
                 self.collect_buffer(f"buffer_0_{task}", i)
 
     def backward(self) -> None:
-        """``iterations`` backward passes: for i = K..2 build stage i's bonus and fine-tune pi_{i-1} with
-        ``lambda1 R + lambda2 bonus`` (Policy-Seq: no bonus, the same budget); refresh the buffers between passes."""
+        """Algorithm 1's ``iterations`` passes after the first forward one. Pass m > 1 first runs the forward
+        step again: for i = 2..K, rho_i is re-collected from the (fine-tuned) pi_{i-1} and pi_i trains on it for
+        ``finetune_steps`` more (stage 1's MDP has not changed, so its forward step is already converged). Every
+        pass then fine-tunes backward: for i = K..2 build stage i's bonus and fine-tune pi_{i-1} with
+        ``lambda1 R + lambda2 bonus`` (Policy-Seq: no bonus, the same budget)."""
         stages = self.stages
         for phase in (f"forward_{i}_{task}" for i, task in enumerate(stages)):
             if self.run.done(phase) is None:
                 raise RuntimeError(f"backward fine-tuning needs the forward phase {phase} of {self.run.root}; run "
                                    f"seqdex pipeline first")
         for m in range(1, self.config.iterations + 1):
+            for i in range(1, len(stages)) if m > 1 else ():
+                self.collect_buffer(f"buffer_{m - 1}_{stages[i - 1]}", i - 1)
+                self.train_stage(f"reforward_{m}_{stages[i]}", i, self.config.finetune_steps,
+                                 start_from=self.run.policy(stages[i]),
+                                 buffer_path=self.run.buffer(stages[i - 1], stages[i]))
             for i in range(len(stages) - 1, 0, -1):
                 bonus = self.transition_bonus(f"bonus_{m}_{stages[i]}", i)
                 previous = stages[i - 1]
                 buffer = self.run.buffer(stages[i - 2], previous) if i > 1 else None
                 self.train_stage(f"finetune_{m}_{previous}", i - 1, self.config.finetune_steps,
                                  start_from=self.run.policy(previous), buffer_path=buffer, bonus=bonus)
-            if m < self.config.iterations:
-                for i in range(len(stages) - 1):
-                    self.collect_buffer(f"buffer_{m}_{stages[i]}", i)
 
     def adopt_forward(self, other: "Pipeline") -> None:
         """Takes ``other``'s finished forward phase (policies, buffers, records) and, if it has them, its first

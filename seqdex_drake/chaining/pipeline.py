@@ -18,7 +18,7 @@ fine-tuning budget continues training on the sub-task reward alone), ``tstar`` (
 discriminator reward at the hand-over), ``vchain`` (fine-tuning with the next stage's PPO critic as F),
 ``scratch`` (one PPO over the whole chain) and ``curriculum`` (one PPO over the whole chain, its start stage
 moved from the last back to the first). All share this module's phases, budgets and evaluation, so their
-figures are comparable: every method gets ``K * stage_steps + M * (K - 1) * finetune_steps`` PPO steps.
+figures are comparable: every method gets ``K * stage_steps + (2M - 1) * (K - 1) * finetune_steps`` PPO steps.
 """
 
 import dataclasses
@@ -55,7 +55,8 @@ class PipelineConfig:
     finetune_steps: int = 6_000
     """PPO env steps per backward fine-tuning step (one per stage but the last, per iteration)."""
     iterations: int = 1
-    """M: forward + backward passes."""
+    """M: forward + backward passes (Algorithm 1's outer loop; the forward pass after the first continues each
+    stage but the first from its predecessor's new terminal states, for ``finetune_steps``)."""
     transition_episodes: int = 150
     """Chain-prefix rollouts per hand-over, for the terminal buffers and F's (or D's, V's) data."""
     eval_episodes: int = 100
@@ -115,8 +116,11 @@ class PipelineConfig:
 
 
 def pipeline_budget(config: PipelineConfig, stages: int) -> int:
-    """PPO env steps every method gets for a chain of ``stages`` sub-tasks."""
-    return stages * config.stage_steps + config.iterations * (stages - 1) * config.finetune_steps
+    """PPO env steps every method gets for a chain of ``stages`` sub-tasks: the first forward pass, then per
+    pass one fine-tuning of each stage but the last, and per pass after the first one more forward training of
+    each stage but the first."""
+    return (stages * config.stage_steps
+            + (2 * config.iterations - 1) * (stages - 1) * config.finetune_steps)
 
 
 class RunDirectory:

@@ -4,7 +4,8 @@ Both stages run in the ``handover/*`` scene (the Franka + Allegro, the table, on
 Reach's terminal states restore exactly into Lower. The chain is built so that Reach's own reward ignores a
 state dimension that decides Lower's success: Reach is rewarded for bringing the hand centre over the block in
 x-y only (its optional clearance term has weight 0 by default); Lower must then bring it to a point 10 cm above
-the block within a few steps, which only works when Reach left the hand low enough (about 14.5 cm or lower).
+the block within a few steps, which only works when Reach left the hand low enough (about 18.5 cm above the
+block or lower).
 Forward initialization alone (Policy-Seq) inherits Reach's arbitrary heights; backward fine-tuning with the
 feasibility function should teach Reach to end low.
 
