@@ -3,9 +3,9 @@
 Both stages run in the ``handover/*`` scene (the Franka + Allegro, the table, one block) and share one plant, so
 Reach's terminal states restore exactly into Lower. The chain is built so that Reach's own reward ignores a
 state dimension that decides Lower's success: Reach is rewarded for bringing the hand centre over the block in
-x-y only (its optional clearance term has weight 0 by default); Lower must then bring it to a point 10 cm above
-the block within a few steps, which only works when Reach left the hand low enough (about 18.5 cm above the
-block or lower).
+x-y only (its optional clearance term has weight 0 by default); Lower must then bring it down to 4 cm above the
+block within 15 steps, which only works when Reach left the hand low enough (about 12.5 cm above the block or
+lower).
 Forward initialization alone (Policy-Seq) inherits Reach's arbitrary heights; backward fine-tuning with the
 feasibility function should teach Reach to end low.
 
