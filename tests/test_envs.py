@@ -10,7 +10,7 @@ from seqdex_drake.tasks.registry import default_config, make_env, task_names
 PAPER_OBSERVATION_SIZE = {"search": 160, "orient": 159, "grasp": 159, "insert": 173,
                           "tool_grasp": 159, "tool_reorient": 173, "reach": 159, "lower": 159}
 PAPER_EPISODE_LENGTH = {"search": 75, "orient": 75, "grasp": 150, "insert": 125, "tool_grasp": 150,
-                        "tool_reorient": 125, "reach": 30, "lower": 10}
+                        "tool_reorient": 125, "reach": 30, "lower": 15}
 
 
 @pytest.fixture(scope="module", params=task_names())
