@@ -344,17 +344,24 @@ class Pipeline:
                 raise RuntimeError(f"backward fine-tuning needs the forward phase {phase} of {self.run.root}; run "
                                    f"seqdex pipeline first")
         for m in range(1, self.config.iterations + 1):
-            for i in range(1, len(stages)) if m > 1 else ():
-                self.collect_buffer(f"buffer_{m - 1}_{stages[i - 1]}", i - 1)
-                self.train_stage(f"reforward_{m}_{stages[i]}", i, self.config.finetune_steps,
-                                 start_from=self.run.policy(stages[i]),
-                                 buffer_path=self.run.buffer(stages[i - 1], stages[i]))
+            if m > 1:
+                self.forward_again(m)
             for i in range(len(stages) - 1, 0, -1):
                 bonus = self.transition_bonus(f"bonus_{m}_{stages[i]}", i)
                 previous = stages[i - 1]
                 buffer = self.run.buffer(stages[i - 2], previous) if i > 1 else None
                 self.train_stage(f"finetune_{m}_{previous}", i - 1, self.config.finetune_steps,
                                  start_from=self.run.policy(previous), buffer_path=buffer, bonus=bonus)
+
+    def forward_again(self, m: int) -> None:
+        """Pass ``m``'s forward step (m > 1): for i = 2..K, rho_i re-collected from the current pi_{i-1}, then
+        pi_i trained on it for ``finetune_steps`` more."""
+        stages = self.stages
+        for i in range(1, len(stages)):
+            self.collect_buffer(f"buffer_{m - 1}_{stages[i - 1]}", i - 1)
+            self.train_stage(f"reforward_{m}_{stages[i]}", i, self.config.finetune_steps,
+                             start_from=self.run.policy(stages[i]),
+                             buffer_path=self.run.buffer(stages[i - 1], stages[i]))
 
     def adopt_forward(self, other: "Pipeline") -> None:
         """Takes ``other``'s finished forward phase (policies, buffers, records) and, if it has them, its first
