@@ -102,3 +102,45 @@ def test_collision_filters_follow_the_frozen_set():
     objects.set_state(harness.context, state)
     objects.redeclare_filters(harness.context)  # Idempotent.
     assert _candidates(harness) == expected
+
+
+def _exact_pin_force(q, v, q_pin, mass, p_BoBcm_B, I_Bcm_B, gravity, omega):
+    """The pin force evaluated without linearization, with Drake's rotation and quaternion types (the oracle
+    for ``pin_force_map``): [tau_Bo_W, f_Bo_W]."""
+    from pydrake.common.eigen_geometry import Quaternion
+    from pydrake.math import RotationMatrix
+
+    R = RotationMatrix(Quaternion(q[:4] / np.linalg.norm(q[:4]))).matrix()
+    R0 = RotationMatrix(Quaternion(q_pin[:4])).matrix()
+    c, c0 = R @ p_BoBcm_B, R0 @ p_BoBcm_B
+    w, v_Bo = v[:3], v[3:]
+    error = Quaternion(q_pin[:4]).multiply(Quaternion(q[:4]).conjugate())  # q is unit to ~1e-10 here.
+    theta = 2 * np.sign(error.w()) * error.xyz()
+    f = mass * (omega**2 * ((q_pin[4:] + c0) - (q[4:] + c)) - 2 * omega * (v_Bo + np.cross(w, c))) - mass * gravity
+    tau = R @ I_Bcm_B @ R.T @ (omega**2 * theta - 2 * omega * w)
+    return np.r_[tau + np.cross(c, f), f]
+
+
+def test_the_linearized_pin_force_matches_the_exact_one_near_the_pin():
+    from pydrake.math import RollPitchYaw
+
+    from seqdex_drake.scene.freezing import PIN_OMEGA, pin_force_map
+
+    rng = np.random.default_rng(3)
+    quat = RollPitchYaw(0.4, -1.1, 2.5).ToQuaternion()
+    q_pin = np.r_[quat.wxyz(), 0.3, -0.2, 0.7]
+    mass, gravity, com = 0.9, np.array([0.0, 0.0, -9.81]), np.array([0.01, -0.02, 0.015])
+    inertia = np.array([[2.0, 0.1, 0.0], [0.1, 3.0, -0.2], [0.0, -0.2, 1.5]]) * 1e-3
+    A, b = pin_force_map(q_pin[None], np.array([mass]), com[None], inertia[None], gravity)
+    at_pin = _exact_pin_force(q_pin, np.zeros(6), q_pin, mass, com, inertia, gravity, PIN_OMEGA)
+    np.testing.assert_allclose(A[0] @ np.r_[q_pin, np.zeros(6)] + b[0], at_pin, atol=1e-12)
+    assert np.allclose(at_pin[3:], -mass * gravity)  # At rest on its pin: exactly anti-gravity.
+    for _ in range(5):  # Micrometre / microradian deviations (and velocities), as a frozen object sees.
+        rotation = RollPitchYaw(*rng.normal(scale=1e-5, size=3)).ToQuaternion()
+        from pydrake.common.eigen_geometry import Quaternion
+
+        q = np.r_[rotation.multiply(Quaternion(q_pin[:4])).wxyz(), q_pin[4:] + rng.normal(scale=1e-5, size=3)]
+        v = rng.normal(scale=1e-3, size=6)
+        exact = _exact_pin_force(q, v, q_pin, mass, com, inertia, gravity, PIN_OMEGA)
+        linear = A[0] @ np.r_[q, v] + b[0]
+        assert np.linalg.norm(linear - exact) <= 1e-4 * np.linalg.norm(exact - at_pin)
