@@ -1,12 +1,18 @@
 """Runtime of the chain controller: one 60 Hz tick of switcher + policies, and the real-time factor of a chain.
 
 Part 1 (tick): 4 paper-size policies (actor MLPs [1024, 1024, 512], untrained weights; Search 160, Orient 159,
-Grasp 159, Insert 173 inputs) all active, plus the switcher with F^2..F^4 (the attention model, H = 10, default
-width) on constant observations, stepped by a Drake Simulator; the wall time per tick is ``tick_ms``. The chain
-itself runs only the executing stage's policy per tick: ``tick_ms_one_policy`` times switcher + 1 policy.
+Grasp 159, Insert 173 inputs) all computing, plus the switcher with F^2..F^4 (the attention model, H = 10,
+default width) on constant observations, stepped by a Drake Simulator; the wall time per tick is ``tick_ms``.
+The chain itself runs only the executing stage's policy per tick (the others' ``active`` input is 0 and they
+skip inference): ``tick_ms_chain`` times switcher + the same 4 policy systems with one computing.
 ``policy_ms`` / ``feasibility_ms`` are single forward passes of the default numpy inference path
-(``systems/inference.py``), ``*_torch_ms`` the same through torch; ``tick_ms_torch`` is the 4-policy tick with
-``inference="torch"``.
+(``systems/inference.py``) repeated back to back (weights cache-resident), ``*_torch_ms`` the same through torch;
+``tick_ms_torch`` is the 4-policy tick with ``inference="torch"``.
+
+The memory floor: a batch-1 policy call reads every weight once, so 4 computing policies read
+``policy_weights_mb`` x 4 per tick. ``memory_bandwidth_gbs`` is this process's read rate over a 64 MB array
+(larger than the caches) and ``tick_floor_ms`` = 4 x weights / bandwidth, the least a 4-policy tick can cost
+when the weights do not stay in cache between ticks (in the chain, physics runs between ticks).
 
 Part 2 (real time): the ``building_blocks/grasp`` station with the chain controller (Orient, Grasp, Insert,
 untrained paper-size policies, F^Grasp and F^Insert with H = 10), a block in the box, simulated for
@@ -65,8 +71,9 @@ def untrained_f(source: str, target: str, obs_dim: int, history: int = 10) -> Fe
     return FeasibilityFile(model, config, 1.0, ObservationSpec(obs_dim, source), source, target, {})
 
 
-def time_tick(ticks: int, num_policies: int, seed: int = 0, inference: str = "numpy") -> tuple[float, float]:
-    """Wall and process-CPU milliseconds per tick of switcher + ``num_policies`` always-active policies."""
+def time_tick(ticks: int, computing: int, seed: int = 0, inference: str = "numpy") -> tuple[float, float]:
+    """Wall and process-CPU milliseconds per tick of switcher + 4 policy systems, the first ``computing`` of them
+    active (the others' ``active`` input is 0: they hold the applied action without inference)."""
     tasks = list(SIZES)
     sizes = [SIZES[t] for t in tasks]
     feasibility = [None] + [untrained_f(tasks[i - 1], tasks[i], sizes[i - 1]) for i in range(1, len(tasks))]
@@ -77,16 +84,29 @@ def time_tick(ticks: int, num_policies: int, seed: int = 0, inference: str = "nu
                                                      SwitcherParams(inference=inference)))
     for i in range(1, len(tasks)):
         builder.Connect(sources[i - 1].get_output_port(), switcher.GetInputPort(f"observation.{i - 1}"))
-    for i in range(num_policies):
+    for i in range(len(tasks)):
         params = PolicyParams(PERIOD, inference=inference)
         policy = builder.AddSystem(PolicySystem.untrained(sizes[i], seed=i, params=params))
         builder.Connect(sources[i].get_output_port(), policy.GetInputPort("observation"))
+        active = builder.AddSystem(ConstantVectorSource([1.0 if i < computing else 0.0]))
+        builder.Connect(active.get_output_port(), policy.GetInputPort("active"))
     simulator = Simulator(builder.Build())
     simulator.Initialize()
     simulator.AdvanceTo(10 * PERIOD)  # warm-up (allocations, first-call overheads)
     start, cpu_start = time.perf_counter(), time.process_time()
     simulator.AdvanceTo((10 + ticks) * PERIOD)
     return (time.perf_counter() - start) / ticks * 1e3, (time.process_time() - cpu_start) / ticks * 1e3
+
+
+def memory_bandwidth_gbs(megabytes: int = 64, repeats: int = 5) -> float:
+    """Read bandwidth (GB/s) of this process: the best of ``repeats`` sums over a float32 array of ``megabytes``."""
+    data = np.ones(megabytes * 2**20 // 4, dtype=np.float32)
+    best = np.inf
+    for _ in range(repeats):
+        start = time.perf_counter()
+        data.sum()
+        best = min(best, time.perf_counter() - start)
+    return data.nbytes / best / 1e9
 
 
 def time_forward(module, make_input, repeats: int) -> float:
@@ -159,12 +179,18 @@ def main():
     f = untrained_f("orient", "grasp", 159).model
     results["feasibility_ms"] = time_forward(FeasibilitySnapshot(f), lambda: np.zeros((10, 159)), 10 * ticks)
     results["feasibility_torch_ms"] = time_forward(f, lambda: torch.zeros(1, 10, 159), 10 * ticks)
-    results["tick_ms"], results["tick_cpu_ms"] = time_tick(ticks, num_policies=4)
-    results["tick_ms_one_policy"], results["tick_cpu_ms_one_policy"] = time_tick(ticks, num_policies=1)
-    results["tick_ms_torch"], results["tick_cpu_ms_torch"] = time_tick(ticks, num_policies=4, inference="torch")
-    print(f"load average {results['load_average']}; one tick, switcher (3 F, H=10) + 4 policies: "
-          f"{results['tick_ms']:.3f} ms wall, {results['tick_cpu_ms']:.3f} ms CPU (goal <= 1 ms); + 1 policy: "
-          f"{results['tick_ms_one_policy']:.3f} ms wall, {results['tick_cpu_ms_one_policy']:.3f} ms CPU; torch path "
+    weights = sum(p.numel() for p in policy.actor.parameters()) * 4
+    results["policy_weights_mb"] = weights / 1e6
+    results["memory_bandwidth_gbs"] = memory_bandwidth_gbs()
+    results["tick_floor_ms"] = 4 * weights / (results["memory_bandwidth_gbs"] * 1e9) * 1e3
+    results["tick_ms"], results["tick_cpu_ms"] = time_tick(ticks, computing=4)
+    results["tick_ms_chain"], results["tick_cpu_ms_chain"] = time_tick(ticks, computing=1)
+    results["tick_ms_torch"], results["tick_cpu_ms_torch"] = time_tick(ticks, computing=4, inference="torch")
+    print(f"load average {results['load_average']}; one tick, switcher (3 F, H=10) + 4 policies computing: "
+          f"{results['tick_ms']:.3f} ms wall, {results['tick_cpu_ms']:.3f} ms CPU (goal <= 1 ms; memory floor "
+          f"{results['tick_floor_ms']:.3f} ms: 4 x {results['policy_weights_mb']:.1f} MB of weights at "
+          f"{results['memory_bandwidth_gbs']:.1f} GB/s); as the chain runs (1 of the 4 computing): "
+          f"{results['tick_ms_chain']:.3f} ms wall, {results['tick_cpu_ms_chain']:.3f} ms CPU; torch path "
           f"(4 policies) {results['tick_ms_torch']:.3f} ms wall, {results['tick_cpu_ms_torch']:.3f} ms CPU; policy "
           f"forward {results['policy_ms']:.3f} ms (torch {results['policy_torch_ms']:.3f}), F forward "
           f"{results['feasibility_ms']:.3f} ms (torch {results['feasibility_torch_ms']:.3f}); torch threads "

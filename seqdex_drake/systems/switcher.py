@@ -205,7 +205,10 @@ class FeasibilitySwitcher(LeafSystem):
         f = self._feasibility[stage]
         if stage not in self._bank_stages:
             return feasibility_score(f, history)
-        return self._current_bank().snapshots[self._bank_stages.index(stage)](history) / float(f.threshold)
+        index = self._bank_stages.index(stage)
+        if self._bank.snapshots[index].stale():  # Only this F's weights matter for this score.
+            self._build_bank()
+        return self._bank.snapshots[index](history) / float(f.threshold)
 
     # ----------------------------------------------------------------------------------------- decision
     def tick_stages(self, stage: int) -> list[int]:
