@@ -7,16 +7,20 @@ number of control periods with ``env.simulator.AdvanceTo`` alone, one call per p
 env code). Zero actions keep the targets where the warm-up left them, so both runs simulate nearly the same motion
 (in Search not quite: the raw loop runs no wake check, so blocks the fingers disturb stay frozen and cheap there).
 The two alternate ``--repeats`` times and the best of each is kept (other processes may load the CPU).
-``raw_with_tactile_solve_steps_per_s`` adds to the raw loop only the discrete contact solve that the motor-tactile
-observation (the hand's net actuation at the new state, with the targets then replaced by the next action's)
-forces on every env step; ``env_over_raw_ceiling`` = that rate / raw is the most the env/raw ratio can reach
-with these observations, however cheap the rest of the env step.
+``raw_with_tactile_solve_steps_per_s`` adds to the raw loop only the motor-tactile read (the hand's net actuation,
+with the targets then rewritten, as every env step does); ``env_over_raw_ceiling`` = that rate / raw is the most
+the env/raw ratio can reach with these observations, however cheap the rest of the env step. With the scenarios'
+sampled output ports the read returns the last plant step's torques and costs nothing (ceiling ~1); with
+``use_sampled_output_ports: false`` it forces one extra discrete contact solve per step.
 
 Vector env (grasp, or every sub-task with ``--all``): ``ProcessVectorEnv`` with 1 and 2 workers, alternating,
 ``--vector-steps`` vector steps of zero actions each (automatic resets included); steps/s counts env steps
 (workers x vector steps). ``inprocess_steps_per_s`` is a plain env stepped the same way in this process.
 ``other_processes_busy_cores`` is how many cores other processes kept busy during each kept measurement (from
 /proc): a 2-worker speedup on 2 cores is only meaningful when it is near 0.
+``raw_two_process_speedup`` is the reference for the 2-worker figure: the same sub-task's raw ``AdvanceTo`` loop in
+2 processes at once against 1 (summed rates), no env code and no pipes: what the machine itself lets two
+simulations gain (shared caches and memory bandwidth, clock boost).
 
 The last line is one JSON object; ``env_over_raw_min`` is the smallest env/raw ratio over the sub-tasks measured
 (goal >= 0.90), ``two_worker_speedup`` the 2-worker over the 1-worker rate for grasp (goal >= 1.8 on 2 cores), and
@@ -27,6 +31,7 @@ The last line is one JSON object; ``env_over_raw_min`` is the smallest env/raw r
 
 import argparse
 import json
+import multiprocessing
 import os
 import time
 
@@ -60,9 +65,9 @@ def _time_raw(env, state, steps: int) -> float:
 
 
 def _time_raw_tactile(env, state, steps: int) -> float:
-    """Like :func:`_time_raw`, plus what the motor-tactile observation forces on any env step: the hand's net
-    actuation evaluated at the new state (a discrete contact solve with the current targets), after which new
-    targets are written (here the same values), so the next step solves again rather than reusing it."""
+    """Like :func:`_time_raw`, plus what the motor-tactile observation costs on any env step: the hand's net
+    actuation read at the new state (free with sampled output ports, else a discrete contact solve with the
+    current targets), after which new targets are written (here the same values), as an env step does."""
     env.reset(options={"initial_state": state})
     t0, period = env.context.get_time(), env.scenario.control_period
     hand = env._hand_source
@@ -125,6 +130,37 @@ def _time_vector(vector_env: ProcessVectorEnv, steps: int) -> tuple[float, float
     return vector_env.num_envs * steps / elapsed, others
 
 
+def _raw_worker(name: str, steps: int, barrier, results) -> None:
+    """Builds sub-task ``name``'s env, waits for the others, then times ``steps`` raw control periods."""
+    env = make_env(name)
+    env.reset(seed=0)
+    for _ in range(WARMUP_STEPS):
+        env.step(np.zeros(env.action_space.shape))
+    state = env.get_state()
+    barrier.wait()
+    results.put(steps / _time_raw(env, state, steps))
+
+
+def raw_parallel_speedup(name: str, steps: int, repeats: int) -> float:
+    """How well the simulation itself scales over processes: the summed raw ``AdvanceTo`` rate of 2 processes
+    running at once over that of 1 (best of ``repeats`` each). No env code and no inter-process traffic, so
+    this is the most a 2-worker vector env can gain on this machine (shared caches, memory bandwidth, clocks)."""
+    context = multiprocessing.get_context("spawn")
+    best = {1: 0.0, 2: 0.0}
+    for _ in range(repeats):
+        for count in (1, 2):
+            barrier, results = context.Barrier(count), context.Queue()
+            workers = [context.Process(target=_raw_worker, args=(name, steps, barrier, results))
+                       for _ in range(count)]
+            for worker in workers:
+                worker.start()
+            rate = sum(results.get(timeout=600) for _ in workers)
+            for worker in workers:
+                worker.join()
+            best[count] = max(best[count], rate)
+    return best[2] / best[1]
+
+
 def vector(name: str, steps: int, repeats: int) -> dict:
     """Best-of-``repeats`` env steps/s with 1 and 2 workers (measured alternately) and in this process."""
     env = make_env(name)
@@ -179,6 +215,8 @@ def main(argv=None):
     vectors = {}
     for name in vector_names:
         vectors[name] = vector(name, args.vector_steps, args.repeats)
+        vectors[name]["raw_two_process_speedup"] = round(raw_parallel_speedup(name, args.vector_steps,
+                                                                              args.repeats), 3)
         print(f"{name:14s} vector env     {vectors[name]}", flush=True)
     summary = {
         "env_over_raw_min": min((result["env_over_raw"] for result in single.values()), default=None),

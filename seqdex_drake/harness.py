@@ -19,7 +19,7 @@ from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q
 from seqdex_drake.scenario import Scenario, ScenarioError
 from seqdex_drake.scene.objects import SceneObjects
 from seqdex_drake.scene.piles import LoadPiles
-from seqdex_drake.station import MODELS_DIR, MODELS_PACKAGE, MakeStation
+from seqdex_drake.station import MODELS_DIR, MODELS_PACKAGE, MakeStation, RefreshSampledOutputs
 
 
 @dataclasses.dataclass
@@ -103,4 +103,5 @@ def MakeStationHarness(scenario: Scenario, meshcat=None, arm_q=None, hand_q=None
         else:
             raise ScenarioError(f"unknown object_layout '{scenario.object_layout}'")
     simulator.Initialize()
+    RefreshSampledOutputs(plant, plant_context)  # Motor torques and contacts of the start state.
     return harness

@@ -9,7 +9,9 @@ Inputs
 Outputs
     ``franka.state``, ``allegro.state``: positions and velocities in the canonical joint order.
     ``franka.net_actuation``, ``allegro.net_actuation``: joint torques the motors exert (PD + feedforward);
-    the Allegro one is the paper's *motor tactile* signal.
+    the Allegro one is the paper's *motor tactile* signal. With the scenarios' sampled output ports these
+    and ``contact_results`` are the plant's last step's; after editing a state without stepping, call
+    :func:`RefreshSampledOutputs` (the environments and harnesses do).
     ``<object>.state`` for each loose object (quaternion pose and twist, 13).
     ``body_poses``, ``body_spatial_velocities``, ``contact_results``, ``query_object``, ``plant_state``.
     ``<camera>.rgb_image`` / ``.depth_image_32f`` / ``.label_image`` for each configured camera.
@@ -291,3 +293,31 @@ def MakeStation(scenario: Scenario, meshcat=None) -> Diagram:
     diagram = builder.Build()
     diagram.set_name(f"station_{scenario.task_family}_{scenario.subtask}".rstrip("_"))
     return diagram
+
+
+def RefreshSampledOutputs(plant: MultibodyPlant, plant_context, scratch=None):
+    """Brings a plant's sampled outputs up to date with its current state (a no-op without sampled outputs).
+
+    With ``MultibodyPlantConfig.use_sampled_output_ports`` (the scenarios' setting) the outputs that need a
+    contact solve (net actuation -- the motor-tactile signal --, contact results, reaction forces) hold what the
+    plant computed during its last step, so reading them costs nothing. After the state is edited without a step
+    (a reset, a restored state) they would describe the old state. This recomputes them as the next step would,
+    from the current state and inputs (one discrete contact solve), and leaves positions and velocities alone.
+
+    Args:
+        plant, plant_context: the plant and its context (inside a diagram context, so the inputs are connected).
+        scratch: a context from ``plant.CreateDefaultContext()`` to compute into (allocated when None; pass the
+            returned one back to save the allocation on later calls).
+
+    Returns:
+        The scratch context (None when there is nothing to refresh).
+    """
+    count = plant_context.num_abstract_states()
+    if count == 0:
+        return None
+    scratch = plant.CreateDefaultContext() if scratch is None else scratch
+    state = scratch.get_mutable_state()
+    plant.CalcForcedUnrestrictedUpdate(plant_context, state)
+    for index in range(count):
+        plant_context.get_mutable_abstract_state(index).SetFrom(state.get_abstract_state().get_value(index))
+    return scratch

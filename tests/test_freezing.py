@@ -11,6 +11,7 @@ from pydrake.math import RigidTransform
 
 from seqdex_drake import LoadScenario
 from seqdex_drake.harness import MakeStationHarness
+from seqdex_drake.station import RefreshSampledOutputs
 
 
 def _grasp_harness():
@@ -74,6 +75,9 @@ def test_touching_wakes_a_block_beyond_the_wake_radius():
     # A 1x4 block lying under the fingertip, its end 2 mm into the fingertip sphere, its centre 7 cm away.
     X_WB = RigidTransform(tip + [0.06 + 0.010, 0.0, -0.0575 / 2])
     harness.objects.set_pose(harness.context, "block_5", X_WB, frozen=True)
+    plant = harness.station.GetSubsystemByName("plant")
+    # The contact results are the plant's sampled outputs: recompute them for the edited state (a step would).
+    RefreshSampledOutputs(plant, plant.GetMyMutableContextFromRoot(harness.context))
     assert harness.objects.update(harness.context) == ["block_5"]  # Only the contact can have woken it.
 
 

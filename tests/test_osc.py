@@ -90,16 +90,18 @@ class Rig:
         self.reset(p_WT)
         dt = self.scenario.control_period
         p_WH = self.osc.hover_point(p_WT)
-        x_tick = self.arm_state().copy()
         summary = dict(first_within_1cm=None, handover_time=None, handover_error=None, max_torque_ratio=0.0,
                        max_velocity_ratio=0.0, min_limit_margin=np.inf, contacts=0, max_tilt=0.0, max_dip=-np.inf,
                        active=[])
         for k in range(1, round(duration / dt) + 1):
-            self.simulator.AdvanceTo(k * dt)
+            # Just past tick k, so that tick k's events have run: the plant step due then (every third tick meets
+            # one; the plant's sampled outputs make it an unrestricted update, which runs first), then the OSC
+            # update, which read the state x we read now and computed the command we read now.
+            self.simulator.AdvanceTo(k * dt + 1e-9)
             x = self.arm_state().copy()
-            command = self.osc_output("franka.desired_state")  # Computed at the previous tick from x_tick.
+            command = self.osc_output("franka.desired_state")
             summary["max_torque_ratio"] = max(summary["max_torque_ratio"],
-                                              np.max(np.abs(self.pd_torque(command, x_tick)) / FRANKA_EFFORT_MAX))
+                                              np.max(np.abs(self.pd_torque(command, x)) / FRANKA_EFFORT_MAX))
             summary["max_velocity_ratio"] = max(summary["max_velocity_ratio"],
                                                 np.max(np.abs(x[7:]) / FRANKA_V_MAX))
             summary["min_limit_margin"] = min(summary["min_limit_margin"],
@@ -117,7 +119,6 @@ class Rig:
                 summary["handover_time"] = k * dt
                 summary["handover_error"] = error
                 summary["handover_target_distance"] = np.linalg.norm(p_WC - p_WT)
-            x_tick = x
         summary["final_error"] = error
         summary["final_tilt"] = self.tilt(x[:7])
         summary["qp_failures"] = self.osc_output("qp_failures")[0]

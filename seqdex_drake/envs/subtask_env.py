@@ -20,7 +20,7 @@ from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, p_PalmHc_Palm, scale_act
 from seqdex_drake.robots.arm_ik import PalmIK
 from seqdex_drake.scenario import LoadScenario
 from seqdex_drake.scene.objects import SceneObjects
-from seqdex_drake.station import MakeControllerPlant, MakeStation
+from seqdex_drake.station import MakeControllerPlant, MakeStation, RefreshSampledOutputs
 from seqdex_drake.systems.observations import ACTION_SIZE, ObservationAssembler, ObservationTarget
 from seqdex_drake.tasks.base import Task, TaskConfig
 
@@ -41,6 +41,10 @@ class EnvState:
     """The sub-task that saved the state (a different one means a hand-off)."""
     arm_velocity_target: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(7))
     """The arm's desired joint velocities (the wrist command's feed-forward; zero at rest)."""
+    time: float = 0.0
+    """Simulation time of the state (s). The control period (1/60 s) is not a multiple of the plant step (2 ms),
+    so which plant steps fall inside a control step depends on the time -- down to its rounding where a control
+    boundary meets a plant step --; restoring it makes the continuation exact (0 for states saved without it)."""
 
 
 class SubtaskEnv(gym.Env):
@@ -166,10 +170,13 @@ class SubtaskEnv(gym.Env):
         return EnvState(self.plant.GetPositions(self.plant_context).copy(),
                         self.plant.GetVelocities(self.plant_context).copy(), self.objects.get_state(self.context),
                         self.target_object, self.goal.copy(), self._arm_target.copy(), self._hand_target.copy(),
-                        self._previous_action.copy(), self.config.name, self._arm_velocity_target.copy())
+                        self._previous_action.copy(), self.config.name, self._arm_velocity_target.copy(),
+                        float(self.context.get_time()))
 
     def set_state(self, state: EnvState) -> None:
-        """Restores a saved state exactly (a few state writes; no re-simulation)."""
+        """Restores a saved state exactly (a few state writes and one contact solve for the sampled outputs; no
+        re-simulation), its simulation time included."""
+        self.context.SetTime(float(state.time))
         self.plant.SetPositions(self.plant_context, state.plant_positions)
         self.plant.SetVelocities(self.plant_context, state.plant_velocities)
         self.objects.set_state(self.context, state.objects)
@@ -177,6 +184,12 @@ class SubtaskEnv(gym.Env):
         self._hand_target = np.array(state.hand_target)
         self._set_sources(np.array(state.arm_target), self._hand_target, np.array(state.previous_action),
                           np.array(state.arm_velocity_target))
+        self.refresh_sampled_outputs()
+
+    def refresh_sampled_outputs(self) -> None:
+        """Recomputes the plant's sampled outputs (motor tactile, contacts) for the current state and targets,
+        as the next step would: call after editing the state without a step (reset and restore do)."""
+        self._scratch = RefreshSampledOutputs(self.plant, self.plant_context, getattr(self, "_scratch", None))
 
     def _set_sources(self, arm_q, hand_q, previous_action, arm_v=None) -> None:
         arm_v = np.zeros(7) if arm_v is None else np.asarray(arm_v, dtype=float)
@@ -208,6 +221,7 @@ class SubtaskEnv(gym.Env):
         # DR hook: physical parameters, pose noise, correlated noise (no-op with every group off).
         self.randomizer.on_reset(self.np_random, reseed=seed is not None, task_reset=initial_state is None)
         self.simulator.Initialize()
+        self.refresh_sampled_outputs()
         self._steps = 0
         return self.randomizer.perturb_observation(self.observation()), {"success": bool(self.task.is_success(self))}
 

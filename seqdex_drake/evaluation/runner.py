@@ -30,7 +30,7 @@ from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q
 from seqdex_drake.scenario import LoadScenario
 from seqdex_drake.scene.objects import SceneObjects
 from seqdex_drake.scene.piles import BOX_CENTER, BOX_INNER_HALF, LoadPiles
-from seqdex_drake.station import MakeStation
+from seqdex_drake.station import MakeStation, RefreshSampledOutputs
 from seqdex_drake.systems.observations import pose_vector, quat_multiply
 from seqdex_drake.tasks.blocks_common import BOX_MARGIN
 from seqdex_drake.tasks.insert import YAW_FLIP
@@ -205,6 +205,7 @@ class ChainRunner:
         body = self.objects.bodies[self.objects.index(name)]
         SetChainTarget(self.controller, self.context, int(body.index()), goal=self.goal)
         self.simulator.Initialize()  # Restarts the chain at stage 0 (switcher, policies, router, wrist IK).
+        RefreshSampledOutputs(self.plant, self.plant_context)  # Motor torques and contacts of the start state.
         self._start_time = self.context.get_time()
 
     def start_block(self, block_type: int, goal: np.ndarray, reset_robot: bool = False) -> str:

@@ -213,7 +213,9 @@ class SceneObjects:
         """Wakes frozen objects the hand touches or comes near, or that a fast-moving object touches;
         freezes again objects that have rested, away from the hand, for ``freeze.sleep_ticks`` steps.
 
-        Call once per control step. Returns the names of the objects woken.
+        Call once per control step. Returns the names of the objects woken. Touches come from the plant's
+        contact results, which with sampled output ports are those of its last step: after editing the state
+        without a step, refresh them first (``station.RefreshSampledOutputs``).
         """
         config = self.scenario.freeze
         frozen = self.frozen_mask(root)
@@ -227,8 +229,8 @@ class SceneObjects:
         moving = (~frozen) & (np.maximum(speed, self._last_speed) > config.wake_speed)
         self._last_speed = speed
         wake = frozen & near_hand
-        # Contact results cost a contact computation: evaluate them only when some frozen object is within
-        # reach (the hand spans ~0.25 m; a moving block, its own size) of something that could touch it.
+        # Read the contacts (a Python loop over them) only when some frozen object is within reach (the hand
+        # spans ~0.25 m; a moving block, its own size) of something that could touch it.
         reach = np.min(np.linalg.norm(p_WO[:, None, :] - np.vstack([hand, p_WO[moving]])[None, :, :], axis=2),
                        axis=1) < 0.2
         if (frozen & reach & ~wake).any():
@@ -245,8 +247,7 @@ class SceneObjects:
     def _touched(self, plant_context: Context, frozen: np.ndarray, moving: np.ndarray) -> np.ndarray:
         """Frozen objects in contact with the robot or with a moving object (the current state's contacts).
 
-        The contact results share the discrete solve of the current state with the motor-torque (tactile)
-        observation evaluated right after, so reading them here costs little extra.
+        The contact results are the plant's sampled outputs (its last step's): reading them costs no solve.
         """
         touched = np.zeros(len(self.names), dtype=bool)
         results = self.plant.get_contact_results_output_port().Eval(plant_context)
