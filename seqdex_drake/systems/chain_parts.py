@@ -91,7 +91,7 @@ class StageRouter(LeafSystem):
         return self._ports[name][stage].Eval(context)
 
     def _calc_hand_state(self, context: Context, output: BasicVector) -> None:
-        output.SetFromVector(np.r_[self._routed(context, "hand_target"), np.zeros(HAND_SIZE)])
+        output.SetFromVector(np.concatenate((self._routed(context, "hand_target"), np.zeros(HAND_SIZE))))
 
     def _initialize(self, context: Context, discrete_state: DiscreteValues) -> None:
         discrete_state.set_value(self._state_index, np.zeros(2))
@@ -183,7 +183,7 @@ class WristTargetIntegrator(LeafSystem):
             return np.asarray(self._osc_port.Eval(context), dtype=float)
         q = context.get_discrete_state(self._q_index).get_value()
         p_WC = self._ik.palm_pose(q).translation() + self._wrist_port.Eval(context)
-        return np.r_[self._ik.step(q, p_WC, self._R_WP), np.zeros(NUM_ARM)]
+        return np.concatenate((self._ik.step(q, p_WC, self._R_WP), np.zeros(NUM_ARM)))
 
     def _calc(self, context: Context, output: BasicVector) -> None:
         output.SetFromVector(self._command(context))

@@ -63,7 +63,9 @@ def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def quat_conjugate(q: np.ndarray) -> np.ndarray:
-    return np.r_[q[0], -q[1:]]
+    conjugate = -np.asarray(q, dtype=float)
+    conjugate[0] = -conjugate[0]
+    return conjugate
 
 
 def pose_vector(X) -> np.ndarray:

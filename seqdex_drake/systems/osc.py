@@ -261,7 +261,7 @@ class OperationalSpaceController(LeafSystem):
         v_des = _clip_norm(p.position_kp / p.position_kd * (p_WH - p_WC), p.max_speed)
         alpha = p.orientation_kd * (w_des - V_WC[:3])
         accel = _clip_norm(p.position_kd * (v_des - V_WC[3:]), p.max_acceleration)
-        return np.r_[alpha, accel]
+        return np.concatenate((alpha, accel))
 
     def _qdd_bounds_now(self, q: np.ndarray, v: np.ndarray, tau_g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per-joint bounds on qdd from velocity, position (braking) and PD-command torque limits."""
@@ -318,7 +318,7 @@ class OperationalSpaceController(LeafSystem):
         bias = plant.CalcBiasSpatialAcceleration(pc, JacobianWrtVariable.kV, self._palm_frame, self._p_PC,
                                                  world, world)
         a_des = self._desired_acceleration(p_WC, X_WPalm.rotation(), J @ v, p_WH)
-        a_des -= np.r_[bias.rotational(), bias.translational()]
+        a_des -= np.concatenate((bias.rotational(), bias.translational()))
 
         # Task + posture cost on qdd: |W (J qdd - a_des)|^2 + w_post |qdd - qdd_post|^2 + w_reg |qdd|^2.
         WJ, Wa = self._W[:, None] * J, self._W * a_des
@@ -343,7 +343,7 @@ class OperationalSpaceController(LeafSystem):
             qdd = self._result.GetSolution(self._qdd)
             v_cmd = np.clip(v + qdd * self._dt, -self._v_max, self._v_max)
             q_cmd = np.clip(q + v_cmd * self._dt / 2, self._q_min, self._q_max)
-            discrete_state.set_value(self._command_index, np.r_[q_cmd, v_cmd])
+            discrete_state.set_value(self._command_index, np.concatenate((q_cmd, v_cmd)))
         else:
             status[1] += 1
             self.statistics.failures += 1

@@ -220,7 +220,7 @@ class PolicySystem(LeafSystem):
                 raise RuntimeError(f"policy {self.source} produced a non-finite action at t = "
                                    f"{context.get_time():.3f} s (non-finite observation or weights)")
             filtered = self.filter(raw, filtered)
-        discrete_state.set_value(self._state_index, np.r_[filtered, raw])
+        discrete_state.set_value(self._state_index, np.concatenate((filtered, raw)))
 
     def _state(self, context: Context) -> np.ndarray:
         return context.get_discrete_state(self._state_index).get_value()
