@@ -18,8 +18,11 @@ Vector env (grasp, or every sub-task with ``--all``): ``ProcessVectorEnv`` with 
 (workers x vector steps). ``inprocess_steps_per_s`` is a plain env stepped the same way in this process.
 ``other_processes_busy_cores`` is how many cores other processes kept busy during each kept measurement (from
 /proc): a 2-worker speedup on 2 cores is only meaningful when it is near 0.
-``raw_two_process_speedup`` is the reference for the 2-worker figure: the same sub-task's raw ``AdvanceTo`` loop in
-2 processes at once against 1 (summed rates), no env code and no pipes: what the machine itself lets two
+``sync_bound_speedup`` is what the per-step times allow a synchronous vector env: envs seeded 0 and 1 (the two
+workers' seeds) are stepped in this process, step by step timed, and a vector step is taken to last as long as the
+slower env's step on perfectly parallel cores (episodes differ in cost, so one env often waits for the other).
+``raw_two_process_speedup`` is the other reference for the 2-worker figure: the same sub-task's raw ``AdvanceTo``
+loop in 2 processes at once against 1 (summed rates), no env code and no pipes: what the machine itself lets two
 simulations gain (shared caches and memory bandwidth, clock boost).
 
 The last line is one JSON object; ``env_over_raw_min`` is the smallest env/raw ratio over the sub-tasks measured
@@ -161,16 +164,28 @@ def raw_parallel_speedup(name: str, steps: int, repeats: int) -> float:
     return best[2] / best[1]
 
 
-def vector(name: str, steps: int, repeats: int) -> dict:
-    """Best-of-``repeats`` env steps/s with 1 and 2 workers (measured alternately) and in this process."""
+def _step_durations(name: str, seed: int, steps: int) -> np.ndarray:
+    """Seconds of each of ``steps`` zero-action steps (automatic resets included) of a sub-task env seeded
+    ``seed``, in this process."""
     env = make_env(name)
-    env.reset(seed=0)
-    start = time.perf_counter()
-    for _ in range(steps):
+    env.reset(seed=seed)
+    durations = np.empty(steps)
+    for k in range(steps):
+        start = time.perf_counter()
         _, _, terminated, truncated, _ = env.step(np.zeros(19))
         if terminated or truncated:
             env.reset()
-    inprocess = steps / (time.perf_counter() - start)
+        durations[k] = time.perf_counter() - start
+    return durations
+
+
+def vector(name: str, steps: int, repeats: int) -> dict:
+    """Best-of-``repeats`` env steps/s with 1 and 2 workers (measured alternately) and in this process."""
+    durations = [_step_durations(name, seed, steps) for seed in (0, 1)]  # The two workers' envs, in-process.
+    inprocess = float(steps / durations[0].sum())
+    # A synchronous vector step lasts as long as its slowest env's step: with 2 envs on 2 perfectly parallel
+    # cores, throughput is 2 steps per max(t0, t1); one process steps both envs, one after the other.
+    sync_bound = float((durations[0] + durations[1]).sum() / np.maximum(*durations).sum())
     rates, others = {1: 0.0, 2: 0.0}, {1: None, 2: None}
     start = time.perf_counter()
     with ProcessVectorEnv(name, 1, seed=0) as one, ProcessVectorEnv(name, 2, seed=0) as two:
@@ -183,7 +198,8 @@ def vector(name: str, steps: int, repeats: int) -> dict:
                 rate, other_load = _time_vector(vector_env, steps)
                 if rate > rates[workers]:
                     rates[workers], others[workers] = rate, other_load
-    return {"inprocess_steps_per_s": round(inprocess, 1), "workers_1_steps_per_s": round(rates[1], 1),
+    return {"inprocess_steps_per_s": round(inprocess, 1), "sync_bound_speedup": round(sync_bound, 3),
+            "workers_1_steps_per_s": round(rates[1], 1),
             "workers_2_steps_per_s": round(rates[2], 1), "two_worker_speedup": round(rates[2] / rates[1], 3),
             "startup_s_3_workers": round(startup, 2), "vector_steps": steps,
             "other_processes_busy_cores": {w: None if v is None else round(v, 2) for w, v in others.items()}}
