@@ -8,7 +8,7 @@ Public API::
 """
 
 from seqdex_drake.scenario import LoadScenario, Scenario, ScenarioError, ScenarioNames
-from seqdex_drake.station import CANONICAL_JOINTS, MakeControllerPlant, MakeStation
+from seqdex_drake.station import CANONICAL_JOINTS, MakeControllerPlant, MakeStation, RefreshSampledOutputs
 
 #: Exported lazily (PEP 562): the chain controller needs torch, which ``import seqdex_drake.<module>`` must not load.
 _CHAIN_EXPORTS = ("ChainParams", "ConnectChainController", "LoadChainCheckpoints", "MakeChainController",
@@ -31,6 +31,7 @@ __all__ = [
     "LoadScenario",
     "MakeControllerPlant",
     "MakeStation",
+    "RefreshSampledOutputs",
     "Scenario",
     "ScenarioError",
     "ScenarioNames",
