@@ -1,0 +1,47 @@
+"""The benchmark scripts run end to end (their ``--test`` mode: a few steps each) and print the figures their
+issues ask for as the last line's JSON object. Figures are not checked against goals here (timing belongs in
+the benchmarks, not in tests); only that they are there and make sense."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _run(script: str, *args: str) -> dict:
+    env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), "--test", *args], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-4000:]
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def test_env_throughput_reports_the_ratios_and_their_references():
+    result = _run("env_throughput.py", "--tasks", "grasp", "tool_grasp")
+    assert set(result["single_process"]) == {"grasp", "tool_grasp"} and not result["failed"]
+    assert 0 < result["env_over_raw_min"] == min(r["env_over_raw"] for r in result["single_process"].values())
+    vector = result["vector"]["grasp"]
+    assert result["two_worker_speedup"] == vector["two_worker_speedup"] > 0
+    assert 1.0 <= vector["sync_bound_speedup"] <= 2.0  # max(t0, t1) lies between the mean and the sum
+    assert vector["raw_two_process_speedup"] > 0
+
+
+def test_chain_runtime_reports_the_tick_its_memory_floor_and_the_real_time_factor():
+    result = _run("chain_runtime.py", "--no-meshcat")
+    for key in ("tick_ms", "tick_ms_chain", "tick_floor_ms", "memory_bandwidth_gbs", "policy_ms", "feasibility_ms",
+                "realtime_factor", "station_realtime_factor"):
+        assert result[key] > 0, key
+    assert result["policy_weights_mb"] == pytest.approx(4 * (159 * 1024 + 1024 * 1024 + 1024 * 512 + 512 * 19
+                                                             + 1024 + 1024 + 512 + 19) / 1e6, rel=1e-3)
+    assert result["realtime_factor_meshcat"] is None  # --no-meshcat
+
+
+def test_osc_solve_time_reports_the_solves():
+    result = _run("osc_solve_time.py")
+    assert result["ticks"] > 0 and result["qp_failures"] == 0
+    assert 0 < result["osc_solve_ms_p50"] <= result["osc_solve_ms_p99"] <= result["osc_solve_ms_max"]
