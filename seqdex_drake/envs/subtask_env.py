@@ -107,6 +107,7 @@ class SubtaskEnv(gym.Env):
         self._steps = 0
         self._arm_target = np.asarray(self.scenario.robot.arm_home, dtype=float)
         self._arm_velocity_target = np.zeros(7)
+        self._scratch = None  # The plant context RefreshSampledOutputs computes into (allocated once).
         self._hand_target = np.array(ALLEGRO_OPEN_Q)
         self._previous_action = np.zeros(ACTION_SIZE)
         self.randomizer = DomainRandomizer(self, self.config.randomization)  # DR hook (envs/randomization.py)
@@ -189,7 +190,7 @@ class SubtaskEnv(gym.Env):
     def refresh_sampled_outputs(self) -> None:
         """Recomputes the plant's sampled outputs (motor tactile, contacts) for the current state and targets,
         as the next step would: call after editing the state without a step (reset and restore do)."""
-        self._scratch = RefreshSampledOutputs(self.plant, self.plant_context, getattr(self, "_scratch", None))
+        self._scratch = RefreshSampledOutputs(self.plant, self.plant_context, self._scratch)
 
     def _set_sources(self, arm_q, hand_q, previous_action, arm_v=None) -> None:
         arm_v = np.zeros(7) if arm_v is None else np.asarray(arm_v, dtype=float)
