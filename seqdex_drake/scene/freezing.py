@@ -76,7 +76,8 @@ def pin_force_map(q_pin: np.ndarray, mass: np.ndarray, p_BoBcm_B: np.ndarray, I_
     plus anti-gravity. Scaled by the mass and the rotational inertia about the centre of mass (in W), it is
     then shifted to the body origin, where the floating joint's generalized forces [tau_Bo_W, f_Bo_W] act.
 
-    The quaternion error is exactly linear in q. The centre of mass's offset ``R(q) p_BoBcm_B`` enters to first
+    The quaternion error is exactly linear in q (q on the pin's side of the double cover, as a frozen object's
+    quaternion stays). The centre of mass's offset ``R(q) p_BoBcm_B`` enters to first
     order (its Jacobian in q, taken on the unit sphere so that it ignores q's norm), and the inertia in W is taken
     at the pin. A frozen object stays within micrometres and microradians of its pin, so the force differs from
     the exact one by a relative O(deviation) ~ 1e-5 (``tests/test_freezing.py``).
