@@ -18,7 +18,7 @@ Part 2 (real time): the ``building_blocks/grasp`` station with the chain control
 untrained paper-size policies, F^Grasp and F^Insert with H = 10), a block in the box, simulated for
 ``--seconds``; ``realtime_factor`` = simulated / wall seconds, without Meshcat and with it
 (``realtime_factor_meshcat``, a fresh Meshcat per run; null when Meshcat cannot start).
-``station_realtime_factor`` is the station with constant targets, for comparison. The three alternate
+``station_realtime_factor`` is the station with constant targets, for comparison. The runs alternate
 ``--repeats`` times and the best of each is kept (this shared machine's speed drifts by 20-30 % between runs).
 Goals (reported, not asserted): tick <= 1 ms, real time >= 1.0.
 

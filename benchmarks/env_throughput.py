@@ -157,9 +157,13 @@ def raw_parallel_speedup(name: str, steps: int, repeats: int) -> float:
                        for _ in range(count)]
             for worker in workers:
                 worker.start()
-            rate = sum(results.get(timeout=600) for _ in workers)
-            for worker in workers:
-                worker.join()
+            try:
+                rate = sum(results.get(timeout=600) for _ in workers)
+            finally:  # A worker that failed or hung must not outlive the benchmark.
+                for worker in workers:
+                    worker.join(timeout=60)
+                    if worker.is_alive():
+                        worker.kill()
             best[count] = max(best[count], rate)
     return best[2] / best[1]
 
