@@ -7,10 +7,12 @@ anti-gravity plus a pin spring (``ObjectFreezer``), context collision filters an
 """
 
 import numpy as np
-from pydrake.math import RigidTransform
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 
 from seqdex_drake import LoadScenario
 from seqdex_drake.harness import MakeStationHarness
+from seqdex_drake.scene.freezing import PIN_OMEGA, pin_force_map
 from seqdex_drake.station import RefreshSampledOutputs
 
 
@@ -111,9 +113,6 @@ def test_collision_filters_follow_the_frozen_set():
 def _exact_pin_force(q, v, q_pin, mass, p_BoBcm_B, I_Bcm_B, gravity, omega):
     """The pin force evaluated without linearization, with Drake's rotation and quaternion types (the oracle
     for ``pin_force_map``): [tau_Bo_W, f_Bo_W]."""
-    from pydrake.common.eigen_geometry import Quaternion
-    from pydrake.math import RotationMatrix
-
     R = RotationMatrix(Quaternion(q[:4] / np.linalg.norm(q[:4]))).matrix()
     R0 = RotationMatrix(Quaternion(q_pin[:4])).matrix()
     c, c0 = R @ p_BoBcm_B, R0 @ p_BoBcm_B
@@ -126,10 +125,6 @@ def _exact_pin_force(q, v, q_pin, mass, p_BoBcm_B, I_Bcm_B, gravity, omega):
 
 
 def test_the_linearized_pin_force_matches_the_exact_one_near_the_pin():
-    from pydrake.math import RollPitchYaw
-
-    from seqdex_drake.scene.freezing import PIN_OMEGA, pin_force_map
-
     rng = np.random.default_rng(3)
     quat = RollPitchYaw(0.4, -1.1, 2.5).ToQuaternion()
     q_pin = np.r_[quat.wxyz(), 0.3, -0.2, 0.7]
@@ -141,8 +136,6 @@ def test_the_linearized_pin_force_matches_the_exact_one_near_the_pin():
     assert np.allclose(at_pin[3:], -mass * gravity)  # At rest on its pin: exactly anti-gravity.
     for _ in range(5):  # Micrometre / microradian deviations (and velocities), as a frozen object sees.
         rotation = RollPitchYaw(*rng.normal(scale=1e-5, size=3)).ToQuaternion()
-        from pydrake.common.eigen_geometry import Quaternion
-
         q = np.r_[rotation.multiply(Quaternion(q_pin[:4])).wxyz(), q_pin[4:] + rng.normal(scale=1e-5, size=3)]
         v = rng.normal(scale=1e-3, size=6)
         exact = _exact_pin_force(q, v, q_pin, mass, com, inertia, gravity, PIN_OMEGA)
