@@ -4,8 +4,10 @@ Single process, per registered sub-task: the env is reset (seed 0), stepped a fe
 state saved. From that state, ``env_steps_per_s`` times ``SubtaskEnv.step`` with zero actions (IK, observation,
 reward terms, wake check) for about ``--seconds``; then, from the same state, ``raw_steps_per_s`` times the same
 number of control periods with ``env.simulator.AdvanceTo`` alone, one call per period, the last targets held (no
-env code). Zero actions keep the targets where the warm-up left them, so both runs simulate nearly the same motion
-(in Search not quite: the raw loop runs no wake check, so blocks the fingers disturb stay frozen and cheap there).
+env code). Zero actions keep the targets where the warm-up left them, so both runs simulate nearly the same motion.
+Where the env woke or re-froze objects (Search's pile), the raw loop applies the same frozen sets at the same
+periods, off the clock, so both simulate the same free bodies (without that, Search's raw loop kept every
+disturbed block frozen and cheap, and env/raw compared different physics).
 The two alternate ``--repeats`` times and the best of each is kept (other processes may load the CPU).
 ``raw_with_tactile_solve_steps_per_s`` adds to the raw loop only the motor-tactile read (the hand's net actuation,
 with the targets then rewritten, as every env step does); ``env_over_raw_ceiling`` = that rate / raw is the most
@@ -46,42 +48,47 @@ from seqdex_drake.tasks.registry import make_env, task_names
 WARMUP_STEPS = 5
 
 
-def _time_env(env, state, seconds: float, max_steps: int) -> tuple[int, float]:
-    """Steps with zero actions from ``state`` for about ``seconds``; returns (steps, elapsed s)."""
+def _time_env(env, state, seconds: float, max_steps: int) -> tuple[int, float, list[np.ndarray]]:
+    """Steps with zero actions from ``state`` for about ``seconds``; returns (steps, elapsed s in ``step``, the
+    frozen-object mask after each step)."""
     env.reset(options={"initial_state": state})
-    action, steps = np.zeros(env.action_space.shape), 0
-    start = time.perf_counter()
-    while steps < max_steps and (steps == 0 or time.perf_counter() - start < seconds):
+    action, steps, elapsed, masks = np.zeros(env.action_space.shape), 0, 0.0, []
+    while steps < max_steps and (steps == 0 or elapsed < seconds):
+        start = time.perf_counter()
         env.step(action)
+        elapsed += time.perf_counter() - start
+        masks.append(env.objects.frozen_mask(env.context))
         steps += 1
-    return steps, time.perf_counter() - start
+    return steps, elapsed, masks
 
 
-def _time_raw(env, state, steps: int) -> float:
-    """Elapsed s for ``steps`` control periods of ``Simulator.AdvanceTo`` alone, from ``state``."""
-    env.reset(options={"initial_state": state})
-    t0, period = env.context.get_time(), env.scenario.control_period
-    start = time.perf_counter()
-    for k in range(1, steps + 1):
-        env.simulator.AdvanceTo(t0 + k * period)
-    return time.perf_counter() - start
+def _time_raw(env, state, steps: int, masks: list[np.ndarray] | None = None, tactile: bool = False) -> float:
+    """Elapsed s for ``steps`` control periods of ``Simulator.AdvanceTo`` alone, from ``state``.
 
-
-def _time_raw_tactile(env, state, steps: int) -> float:
-    """Like :func:`_time_raw`, plus what the motor-tactile observation costs on any env step: the hand's net
-    actuation read at the new state (free with sampled output ports, else a discrete contact solve with the
-    current targets), after which new targets are written (here the same values), as an env step does."""
+    With ``masks`` (the env run's frozen-object masks), each period starts with the objects frozen as the env's
+    did, applied off the clock: both runs then simulate the same free bodies, and deciding to wake (the wake
+    check) and re-pinning stay on the env's side. With ``tactile``, each period also pays what the
+    motor-tactile observation costs on any env step: the hand's net actuation read at the new state (free with
+    sampled output ports, else a discrete contact solve with the current targets), after which new targets are
+    written (here the same values), as an env step does.
+    """
     env.reset(options={"initial_state": state})
     t0, period = env.context.get_time(), env.scenario.control_period
     hand = env._hand_source
     hand_context = hand.GetMyMutableContextFromRoot(env.context)
     target = hand.get_source_value(hand_context).CopyToVector()
-    start = time.perf_counter()
+    current, elapsed = env.objects.frozen_mask(env.context), 0.0
     for k in range(1, steps + 1):
+        if masks is not None and k > 1 and not np.array_equal(masks[k - 2], current):
+            current = masks[k - 2]
+            env.objects.set_frozen(env.context, current)
+        start = time.perf_counter()
         env.simulator.AdvanceTo(t0 + k * period)
-        env.hand_torque()
-        hand.get_mutable_source_value(hand_context).SetFromVector(target)
-    return time.perf_counter() - start
+        if tactile:
+            env.hand_torque()
+            hand.get_mutable_source_value(hand_context).SetFromVector(target)
+        elapsed += time.perf_counter() - start
+    return elapsed
 
 
 def single_process(name: str, seconds: float, repeats: int) -> dict:
@@ -94,10 +101,10 @@ def single_process(name: str, seconds: float, repeats: int) -> dict:
     max_steps = env.config.episode_length - 1  # Stay inside one episode (no truncation).
     env_rate = raw_rate = tactile_rate = 0.0
     for _ in range(repeats):
-        steps, elapsed = _time_env(env, state, seconds, max_steps)
+        steps, elapsed, masks = _time_env(env, state, seconds, max_steps)
         env_rate = max(env_rate, steps / elapsed)
-        raw_rate = max(raw_rate, steps / _time_raw(env, state, steps))
-        tactile_rate = max(tactile_rate, steps / _time_raw_tactile(env, state, steps))
+        raw_rate = max(raw_rate, steps / _time_raw(env, state, steps, masks))
+        tactile_rate = max(tactile_rate, steps / _time_raw(env, state, steps, masks, tactile=True))
     return {"env_steps_per_s": round(env_rate, 1), "raw_steps_per_s": round(raw_rate, 1),
             "env_over_raw": round(env_rate / raw_rate, 3), "steps": steps,
             "raw_with_tactile_solve_steps_per_s": round(tactile_rate, 1),

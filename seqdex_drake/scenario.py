@@ -108,6 +108,10 @@ class Scenario:
     """Freezing of far-away objects (large piles)."""
     cameras: dict[str, CameraConfig] = dataclasses.field(default_factory=dict)
     """Cameras added with ``ApplyCameraConfig``; ports ``<name>.rgb_image``, ``<name>.label_image``, ..."""
+    low_poly_perception: bool = True
+    """Cameras render low-poly stand-ins of spheres, capsules, cylinders and of meshes that have a
+    ``perception.obj`` beside them (the blocks), ~4x cheaper on a CPU renderer; Meshcat and contact keep the
+    full geometry (``scene/perception_geometry.py``). False renders the full visual geometry."""
     visualization: VisualizationConfig = dataclasses.field(default_factory=VisualizationConfig)
     """Meshcat visualization settings, used only when a Meshcat is passed to MakeStation."""
 

@@ -56,6 +56,7 @@ from pydrake.visualization import VisualizationConfig
 from seqdex_drake.robots.allegro import ALLEGRO_JOINT_NAMES, ALLEGRO_OPEN_Q
 from seqdex_drake.robots.franka import FRANKA_JOINT_NAMES
 from seqdex_drake.scenario import MODELS_DIR, MODELS_PACKAGE, Scenario, ScenarioError
+from seqdex_drake.scene.perception_geometry import UseLowPolyPerceptionGeometry
 
 FRANKA = "franka"
 ALLEGRO = "allegro"
@@ -278,6 +279,8 @@ def MakeStation(scenario: Scenario, meshcat=None) -> Diagram:
 
     AddObjectFreezer(builder, plant, scene_graph, scenario)
 
+    if scenario.cameras and scenario.low_poly_perception:
+        UseLowPolyPerceptionGeometry(plant, scene_graph)
     for name, camera in scenario.cameras.items():
         AddCamera(builder, plant, scene_graph, name, camera)
 

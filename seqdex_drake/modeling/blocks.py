@@ -27,6 +27,7 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
+import trimesh
 
 from seqdex_drake.modeling import decomposition, sdf_writer
 
@@ -328,7 +329,8 @@ def visual_mesh(block_type: int):
 
 
 def generate_block(block_type: int, out_dir: str) -> dict:
-    """Writes visual.obj, coarse/ and fine/ convex pieces and both SDF files of one block type.
+    """Writes visual.obj, coarse/ and fine/ convex pieces, perception.obj (the coarse pieces in one file: the
+    cameras render it instead of visual.obj) and both SDF files of one block type.
 
     Args:
         block_type: 1-8.
@@ -352,6 +354,9 @@ def generate_block(block_type: int, out_dir: str) -> dict:
         if overlap > 1e-12:
             raise RuntimeError(f"block {block_type} {name}: cavity overlaps the studs below by {overlap:.3g} m^3")
         files = decomposition.write_pieces(os.path.join(block_dir, name), pieces)
+        if resolution is COARSE:  # The cameras' low-poly stand-in (scene/perception_geometry.py).
+            decomposition.write_obj(os.path.join(block_dir, "perception.obj"), trimesh.util.concatenate(pieces),
+                                    comment=f"{spec.model_name} perception stand-in: the coarse pieces")
         collisions = [
             sdf_writer.Collision(f"collision_{k:03d}", sdf_writer.mesh(f"{name}/{file}", convex=True),
                                  BLOCK_PROXIMITY)
