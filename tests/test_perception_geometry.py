@@ -6,9 +6,9 @@ from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Mesh, ReadObjToT
 
 from seqdex_drake import LoadScenario, MakeStation
 from seqdex_drake.harness import ResolvePackageUrl
+from seqdex_drake.scenario import MODELS_DIR
 from seqdex_drake.scene.perception_geometry import STAND_IN_FILE, low_poly_shape
 from seqdex_drake.scene.piles import LoadPiles
-from seqdex_drake.scenario import MODELS_DIR
 
 
 def _vertices(mesh: Mesh) -> np.ndarray:
@@ -19,7 +19,8 @@ def _vertices(mesh: Mesh) -> np.ndarray:
     return np.array([[float(x) for x in line.split()[1:4]] for line in text.splitlines() if line.startswith("v ")])
 
 
-@pytest.mark.parametrize("shape", [Sphere(0.012), Capsule(0.01, 0.05), Cylinder(0.02, 0.04), Ellipsoid(0.01, 0.02, 0.03)])
+@pytest.mark.parametrize("shape", [Sphere(0.012), Capsule(0.01, 0.05), Cylinder(0.02, 0.04),
+                                   Ellipsoid(0.01, 0.02, 0.03)])
 def test_primitive_stand_ins_are_low_poly_and_on_the_surface(shape):
     stand_in = low_poly_shape(shape)
     assert isinstance(stand_in, Mesh)

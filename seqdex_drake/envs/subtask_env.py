@@ -16,7 +16,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
 from seqdex_drake.envs.randomization import DomainRandomizer
-from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, p_PalmHc_Palm, scale_action_to_limits
+from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, PALM_BODY, p_PalmHc_Palm, p_PalmPc_Palm, scale_action_to_limits
 from seqdex_drake.robots.arm_ik import PalmIK
 from seqdex_drake.scenario import LoadScenario
 from seqdex_drake.scene.objects import SceneObjects
@@ -103,6 +103,8 @@ class SubtaskEnv(gym.Env):
         self.action_space = gym.spaces.Box(action_low, action_high, dtype=np.float32)
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, (assembler.size,), np.float32)
         self.target_object = ""
+        self._object_body, self._p_OOcm = None, np.zeros(3)  # Of the target object (set_target).
+        self._palm_body = self.plant.GetBodyByName(PALM_BODY, self.hand)
         self.goal = np.array([0, 0, 0, 1.0, 0, 0, 0])
         self._steps = 0
         self._arm_target = np.asarray(self.scenario.robot.arm_home, dtype=float)
@@ -124,19 +126,30 @@ class SubtaskEnv(gym.Env):
         return self.plant.GetPositions(self.plant_context, self.hand)
 
     def object_body(self):
-        return self.objects.bodies[self.objects.index(self.target_object)]
+        return self._object_body
 
     def object_pose(self):
-        return self.plant.EvalBodyPoseInWorld(self.plant_context, self.object_body())
+        return self.plant.EvalBodyPoseInWorld(self.plant_context, self._object_body)
 
     def object_position(self) -> np.ndarray:
         """World position of the target object's centre of mass."""
-        return self.object_pose() @ self.object_body().default_com()
+        X_WO = self.object_pose()
+        return X_WO.rotation().matrix() @ self._p_OOcm + X_WO.translation()
+
+    def hand_points(self) -> np.ndarray:
+        """(5, 3) world positions of the four fingertips (index, middle, ring, thumb) and the palm centre, as
+        ``SceneObjects.hand_points``: the tips from the observation (cached by Drake until the state changes,
+        so the step's own observation serves every call), the palm centre from the plant's cached kinematics."""
+        points = np.empty((5, 3))
+        points[:4] = self._raw_observation()[46:98].reshape(4, 13)[:, :3]
+        X_WPalm = self.plant.EvalBodyPoseInWorld(self.plant_context, self._palm_body)
+        points[4] = X_WPalm.rotation().matrix() @ p_PalmPc_Palm + X_WPalm.translation()
+        return points
 
     def fingertip_distance(self) -> float:
         """Sum of the four fingertips' distances to the target object's centre (the paper's Sigma f)."""
-        return float(np.sum(np.linalg.norm(self.objects.hand_points(self.context)[:4] - self.object_position(),
-                                           axis=1)))
+        offsets = self._raw_observation()[46:98].reshape(4, 13)[:, :3] - self.object_position()
+        return float(np.sqrt(np.einsum("ij,ij->i", offsets, offsets)).sum())
 
     def hand_torque(self) -> np.ndarray:
         return self._hand_torque_port.Eval(self._station_context)
@@ -161,6 +174,8 @@ class SubtaskEnv(gym.Env):
     def set_target(self, name: str, goal: np.ndarray | None = None) -> None:
         """Declares the episode's target object (and goal pose [xyz, wxyz]) for observations and rewards."""
         self.target_object = name
+        self._object_body = self.objects.bodies[self.objects.index(name)]
+        self._p_OOcm = self._object_body.default_com()
         if goal is not None:
             self.goal = np.asarray(goal, dtype=float)
         label = int(self.object_body().index())  # MultibodyPlant labels each body's geometry by body index.
@@ -203,8 +218,12 @@ class SubtaskEnv(gym.Env):
         self._arm_velocity_target = arm_v
         self._previous_action = np.array(previous_action, dtype=float)
 
+    def _raw_observation(self) -> np.ndarray:
+        """The assembled observation (float64, before any noise); Drake caches it until the state changes."""
+        return self.assembler.get_output_port().Eval(self._assembler_context)
+
     def observation(self) -> np.ndarray:
-        return self.assembler.get_output_port().Eval(self._assembler_context).astype(np.float32)
+        return self._raw_observation().astype(np.float32)
 
     # ------------------------------------------------------------------------------------------ gym API
     def reset(self, *, seed=None, options=None):
@@ -230,9 +249,9 @@ class SubtaskEnv(gym.Env):
         action = np.asarray(action, dtype=float)
         if action.shape != (ACTION_SIZE,):
             raise ValueError(f"action must have shape ({ACTION_SIZE},), got {action.shape}")
-        if not np.all(np.isfinite(action)):
+        if not np.isfinite(action).all():
             return self.observation(), 0.0, False, True, {"nan_action": True, "success": False}
-        action = np.clip(self.randomizer.perturb_action(action), -1.0, 1.0)  # DR hook: action noise
+        action = np.minimum(np.maximum(self.randomizer.perturb_action(action), -1.0), 1.0)  # DR hook: action noise
         if self.config.hand_actions:
             ema = self.config.ema
             self._hand_target = ema * scale_action_to_limits(action[:16]) + (1 - ema) * self._hand_target
@@ -250,13 +269,13 @@ class SubtaskEnv(gym.Env):
         info = {"nan_action": False, "simulator_error": False}
         try:
             self.simulator.AdvanceTo(self.context.get_time() + self.scenario.control_period)
-            self.objects.update(self.context)
+            observation = self.observation()  # Waking or freezing objects below moves nothing it shows.
+            self.objects.update(self.context, self.hand_points())
             self.randomizer.on_step()  # DR hook: re-applies object masses, re-draws every N plant steps
-            observation = self.observation()
         except RuntimeError as error:  # A failed contact solve, NaN state, ...: a truncation.
             info.update(simulator_error=True, error=str(error), success=False)
             return np.zeros(self.observation_space.shape, np.float32), 0.0, False, True, info
-        if not np.all(np.isfinite(observation)):
+        if not np.isfinite(observation).all():
             info.update(simulator_error=True, error="non-finite observation", success=False)
             return np.nan_to_num(observation, nan=0.0, posinf=0.0, neginf=0.0), 0.0, False, True, info
         self._steps += 1

@@ -39,18 +39,19 @@ class PalmIK:
         self._X_PalmC = RigidTransform(self.p_PalmC_Palm)
         self._world = controller_plant.world_frame()
         self._damping_eye = (damping, damping**2 * np.eye(6))  # Recomputed if ``damping`` is changed.
-        self._last = (None, None)  # (q_arm, X_WC) of the last palm_pose call: the env asks twice per tick.
+        self._last = (None, None)  # (q_arm bytes, X_WC) of the last palm_pose call: the env asks twice a tick.
 
     def palm_pose(self, q_arm: np.ndarray) -> RigidTransform:
         """X_WC: the controlled point with the palm's orientation, in the world, for arm positions ``q_arm``.
 
         Leaves ``self.context`` at ``q_arm`` (``step`` evaluates the Jacobian there)."""
+        key = np.asarray(q_arm, dtype=float).tobytes()  # Cheaper to compare than np.array_equal, per step.
         q_last, X_last = self._last
-        if q_last is not None and np.array_equal(q_arm, q_last):
+        if key == q_last:
             return X_last
         self.plant.SetPositions(self.context, q_arm)
-        X_WC = self.palm.CalcPoseInWorld(self.context) @ self._X_PalmC
-        self._last = (np.array(q_arm, dtype=float), X_WC)
+        X_WC = self.palm.CalcPoseInWorld(self.context).multiply(self._X_PalmC)
+        self._last = (key, X_WC)
         return X_WC
 
     def step(self, q_arm: np.ndarray, p_WC_target: np.ndarray, R_WP_target: RotationMatrix,
@@ -70,7 +71,7 @@ class PalmIK:
         norm = np.linalg.norm(dq)
         if norm > max_step:
             dq *= max_step / norm
-        return np.clip(q_arm + dq, FRANKA_Q_MIN, FRANKA_Q_MAX)
+        return np.minimum(np.maximum(q_arm + dq, FRANKA_Q_MIN), FRANKA_Q_MAX)
 
     def solve(self, q_arm: np.ndarray, p_WC_target: np.ndarray, R_WP_target: RotationMatrix,
               iterations: int = 300, tolerance: float = 1e-4) -> tuple[np.ndarray, float]:

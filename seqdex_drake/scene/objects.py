@@ -209,30 +209,36 @@ class SceneObjects:
         tips = [f.CalcPoseInWorld(plant_context).translation() for f in self._tip_frames]
         return np.array(tips + [self._palm_frame.CalcPoseInWorld(plant_context) @ p_PalmPc_Palm])
 
-    def update(self, root: Context) -> list[str]:
+    def update(self, root: Context, hand: np.ndarray | None = None) -> list[str]:
         """Wakes frozen objects the hand touches or comes near, or that a fast-moving object touches;
         freezes again objects that have rested, away from the hand, for ``freeze.sleep_ticks`` steps.
 
         Call once per control step. Returns the names of the objects woken. Touches come from the plant's
         contact results, which with sampled output ports are those of its last step: after editing the state
-        without a step, refresh them first (``station.RefreshSampledOutputs``).
+        without a step, refresh them first (``station.RefreshSampledOutputs``). ``hand``: the
+        :meth:`hand_points` of the current state, where the caller has them already.
         """
         config = self.scenario.freeze
         frozen = self.frozen_mask(root)
-        p_WO = self.positions(root)[:, 4:]
         plant_context = self.plant.GetMyContextFromRoot(root)
-        v = self.plant.GetVelocities(plant_context)
-        speed = np.linalg.norm(v[self._v_translational_index], axis=1)
-        hand = self.hand_points(root)
-        near_hand = np.min(np.linalg.norm(p_WO[:, None, :] - hand[None, :, :], axis=2), axis=1) < config.wake_radius
+        p_WO = self.plant.GetPositions(plant_context)[self._q_index[:, 4:]]
+        v_WO = self.plant.GetVelocities(plant_context)[self._v_translational_index]
+        speed = np.sqrt(np.einsum("ij,ij->i", v_WO, v_WO))
+        hand = self.hand_points(root) if hand is None else hand
+        # Squared distances of every object to every hand point, (n, 5): few numpy calls, as this runs per step.
+        offsets = p_WO[:, None, :] - hand[None, :, :]
+        to_hand = np.einsum("ijk,ijk->ij", offsets, offsets).min(axis=1)
+        near_hand = to_hand < config.wake_radius**2
         # Fast now or at the last check: an impact is over (slow again) by the end of the step it happens in.
         moving = (~frozen) & (np.maximum(speed, self._last_speed) > config.wake_speed)
         self._last_speed = speed
         wake = frozen & near_hand
         # Read the contacts (a Python loop over them) only when some frozen object is within reach (the hand
         # spans ~0.25 m; a moving block, its own size) of something that could touch it.
-        reach = np.min(np.linalg.norm(p_WO[:, None, :] - np.vstack([hand, p_WO[moving]])[None, :, :], axis=2),
-                       axis=1) < 0.2
+        reach = to_hand < 0.2**2
+        if moving.any():
+            offsets = p_WO[:, None, :] - p_WO[None, moving, :]
+            reach |= np.einsum("ijk,ijk->ij", offsets, offsets).min(axis=1) < 0.2**2
         if (frozen & reach & ~wake).any():
             wake |= frozen & self._touched(plant_context, frozen, moving)
         still = (~frozen) & (speed < config.sleep_speed) & ~near_hand
@@ -242,7 +248,7 @@ class SceneObjects:
             ticks = self._still_ticks.copy()
             self.set_frozen(root, (frozen & ~wake) | sleep)
             self._still_ticks = np.where(sleep, 0, ticks)
-        return [self.names[i] for i in np.flatnonzero(wake)]
+        return [self.names[i] for i in np.flatnonzero(wake)] if wake.any() else []
 
     def _touched(self, plant_context: Context, frozen: np.ndarray, moving: np.ndarray) -> np.ndarray:
         """Frozen objects in contact with the robot or with a moving object (the current state's contacts).

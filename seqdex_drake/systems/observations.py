@@ -101,7 +101,7 @@ class ObservationAssembler(LeafSystem):
         self._tips = [plant.GetFrameByName(name, hand) for name in FINGERTIP_FRAMES]
         self._tip_bodies = [int(f.body().index()) for f in self._tips]
         self._X_BF = [f.GetFixedPoseInBodyFrame() for f in self._tips]
-        self._p_BF = [X.translation() for X in self._X_BF]
+        self._tips_are_bodies = all(X.IsExactlyIdentity() for X in self._X_BF)  # Our Allegro: tip links.
         self._palm = int(plant.GetBodyByName(PALM_BODY, hand).index())
         self._goal, self._pixels = goal, pixels
         self.size = BASE_SIZE + (GOAL_SIZE if goal else 0) + (1 if pixels else 0)
@@ -124,17 +124,6 @@ class ObservationAssembler(LeafSystem):
     def target(self, context) -> ObservationTarget:
         return context.get_abstract_parameter(self._target_index).get_value()
 
-    def _write_body_state(self, out: np.ndarray, start: int, X_WB, V, p_BF=None, X_BF=None) -> None:
-        """Writes the 13-vector (pose, linear, angular velocity) of body B, or of frame F fixed on it, at ``start``."""
-        w_WB = V.rotational()
-        if X_BF is None:
-            _write_pose(out, start, X_WB)
-            out[start + 7:start + 10] = V.translational()
-        else:
-            _write_pose(out, start, X_WB.multiply(X_BF))
-            out[start + 7:start + 10] = V.translational() + cross3(w_WB, X_WB.rotation().multiply(p_BF))
-        out[start + 10:start + 13] = w_WB
-
     def _calc(self, context, output: BasicVector) -> None:
         target = self.target(context)
         if target.object_body < 0:
@@ -145,10 +134,20 @@ class ObservationAssembler(LeafSystem):
         velocities = self.get_input_port(4).Eval(context)
         out = np.empty(self.size)
         out[0:7], out[7:23], out[23:30], out[30:46] = arm[:7], hand[:16], arm[7:], hand[16:]
-        for k, (body, p_BF, X_BF) in enumerate(zip(self._tip_bodies, self._p_BF, self._X_BF, strict=True)):
-            self._write_body_state(out, 46 + 13 * k, poses[body], velocities[body], p_BF, X_BF)
-        self._write_body_state(out, 98, poses[self._palm], velocities[self._palm])
-        self._write_body_state(out, 111, poses[target.object_body], velocities[target.object_body])
+        # The 4 fingertip frames, the palm and the object, one 13-row each: pose (7), linear, angular velocity.
+        X_WB = [poses[b] for b in self._tip_bodies]
+        frames = X_WB if self._tips_are_bodies else [X.multiply(X_BF) for X, X_BF in zip(X_WB, self._X_BF,
+                                                                                          strict=True)]
+        frames = [*frames, poses[self._palm], poses[target.object_body]]
+        rows = np.empty((6, 13))
+        rows[:, :3] = [X.translation() for X in frames]
+        rows[:, 3:7] = [X.rotation().ToQuaternion().wxyz() for X in frames]
+        rows[:, 3:7] *= np.where(rows[:, 3:4] < 0.0, -1.0, 1.0)  # The hemisphere qw >= 0.
+        V = np.array([velocities[b].get_coeffs() for b in (*self._tip_bodies, self._palm, target.object_body)])
+        rows[:, 7:10], rows[:, 10:13] = V[:, 3:], V[:, :3]  # Drake's coefficients are [angular, linear].
+        if not self._tips_are_bodies:  # A frame F fixed on body B moves at v_WB + w_WB x p_BF (in the world).
+            rows[:4, 7:10] += np.cross(V[:4, :3], rows[:4, :3] - [X.translation() for X in X_WB])
+        out[46:124] = rows.ravel()
         out[124:143] = self.get_input_port(5).Eval(context)
         out[143:159] = self.get_input_port(2).Eval(context)
         if self._goal:

@@ -1,0 +1,73 @@
+"""The observation layout against Drake's own kinematics, and the env's helpers that read it."""
+
+import numpy as np
+import pytest
+from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.systems.framework import BasicVector
+
+from seqdex_drake.robots.allegro import FINGERTIP_FRAMES, PALM_BODY
+from seqdex_drake.systems.observations import pose_vector
+from seqdex_drake.tasks.registry import make_env
+
+
+@pytest.fixture(scope="module")
+def env():
+    env = make_env("tool_reorient")
+    env.reset(seed=2)
+    rng = np.random.default_rng(0)
+    for _ in range(4):  # Moving: nonzero velocities everywhere.
+        env.step(rng.uniform(-1, 1, 19))
+    return env
+
+
+def _body_rows(env, frames) -> np.ndarray:
+    rows = []
+    for frame in frames:
+        X = frame.CalcPoseInWorld(env.plant_context)
+        V = frame.CalcSpatialVelocityInWorld(env.plant_context)
+        rows.append(np.concatenate([pose_vector(X), V.translational(), V.rotational()]))
+    return np.array(rows)
+
+
+def test_observation_matches_the_plants_kinematics(env):
+    obs = env._raw_observation()
+    plant, context = env.plant, env.plant_context
+    q, v = plant.GetPositions(context, env.arm), plant.GetVelocities(context, env.arm)
+    np.testing.assert_array_equal(obs[:7], q)
+    np.testing.assert_array_equal(obs[7:23], plant.GetPositions(context, env.hand))
+    np.testing.assert_array_equal(obs[23:30], v)
+    np.testing.assert_array_equal(obs[30:46], plant.GetVelocities(context, env.hand))
+    frames = [plant.GetFrameByName(name, env.hand) for name in FINGERTIP_FRAMES]
+    frames += [plant.GetBodyByName(PALM_BODY, env.hand).body_frame(), env.object_body().body_frame()]
+    np.testing.assert_allclose(obs[46:124].reshape(6, 13), _body_rows(env, frames), atol=1e-12)
+    np.testing.assert_array_equal(obs[124:143], env._previous_action)
+    np.testing.assert_array_equal(obs[143:159], env.hand_torque())
+    assert np.abs(obs[46:124].reshape(6, 13)[:, 7:]).max() > 1e-3  # Really moving.
+
+
+def test_fingertip_frames_offset_from_their_bodies(env):
+    """The assembler's general case, frames not at their body's origin (our Allegro's tips are tip links)."""
+    assembler, context = env.assembler, env._assembler_context
+    X_BF = RigidTransform(RollPitchYaw(0.3, -0.2, 0.5), [0.01, -0.02, 0.03])
+    saved = assembler._X_BF, assembler._tips_are_bodies
+    try:
+        assembler._X_BF, assembler._tips_are_bodies = [X_BF] * 4, False
+        out = BasicVector(assembler.size)
+        type(assembler)._calc(assembler, context, out)
+    finally:
+        assembler._X_BF, assembler._tips_are_bodies = saved
+    for k, name in enumerate(FINGERTIP_FRAMES):
+        body = env.plant.GetFrameByName(name, env.hand).body()
+        X_WB = body.EvalPoseInWorld(env.plant_context)
+        V_WB = body.EvalSpatialVelocityInWorld(env.plant_context)
+        V_WF = V_WB.Shift(X_WB.rotation() @ X_BF.translation())
+        expected = np.concatenate([pose_vector(X_WB @ X_BF), V_WF.translational(), V_WF.rotational()])
+        np.testing.assert_allclose(out.value()[46 + 13 * k:59 + 13 * k], expected, atol=1e-12)
+
+
+def test_hand_points_and_fingertip_distance_agree_with_the_plant(env):
+    expected = env.objects.hand_points(env.context)
+    np.testing.assert_allclose(env.hand_points(), expected, atol=1e-12)
+    com = env.object_pose() @ env.object_body().default_com()
+    np.testing.assert_allclose(env.object_position(), com, atol=1e-12)
+    assert env.fingertip_distance() == pytest.approx(np.linalg.norm(expected[:4] - com, axis=1).sum(), abs=1e-12)
