@@ -163,3 +163,45 @@ def test_close_is_idempotent_and_usable_as_a_context_manager():
         ProcessVectorEnv(TASK, 0)
     with pytest.raises(ValueError, match="valid tasks: search"):
         ProcessVectorEnv("dance", 1)
+
+
+def test_several_envs_per_worker_reproduce_the_serial_envs_and_restart_together():
+    config = dataclasses.replace(default_config(TASK), episode_length=4)  # One autoreset per env in 6 steps.
+    actions = _actions(6, 3)
+    with ProcessVectorEnv(TASK, 3, seed=SEED, config=config, envs_per_worker=2, max_restarts=2,
+                          timeout=120.0) as vector_env:
+        assert vector_env.num_workers == 2 and len(set(vector_env.pids)) == 2
+        assert vector_env.pids[0] == vector_env.pids[1] != vector_env.pids[2]
+        rollout = [(vector_env.reset()[0], None, None, None)]
+        for action in actions:
+            rollout.append(vector_env.step(action)[:4])
+        for index in range(3):
+            serial = _serial_rollout(config, SEED + index, actions[:, index])
+            for (observations, rewards, terminated, truncated), (obs, reward, term, trunc, _) in zip(
+                    rollout, serial, strict=True):
+                np.testing.assert_array_equal(observations[index], obs)
+                if reward is not None:
+                    assert (rewards[index], terminated[index], truncated[index]) == (reward, term, trunc)
+        # Killing the process of envs 0 and 1 loses both episodes; both restart in one new process.
+        old_pids = vector_env.pids
+        os.kill(old_pids[0], signal.SIGKILL)
+        after, rewards, terminated, truncated, infos = vector_env.step(np.zeros((3, 19)))
+        assert truncated.tolist() == [True, True, False] and rewards[:2].tolist() == [0.0, 0.0]
+        assert infos[0]["worker_restarted"] and infos[1]["worker_restarted"] and "worker_restarted" not in infos[2]
+        assert vector_env.restarts == [1, 1, 0] and vector_env.lost_episodes == 2
+        pids = vector_env.pids
+        assert pids[0] == pids[1] != old_pids[0] and pids[2] == old_pids[2]
+        serial = make_env(TASK, config)
+        np.testing.assert_array_equal(after[1], serial.reset(seed=SEED + 1 + 3 * 1)[0])
+        vector_env.step(np.zeros((3, 19)))
+
+
+def test_an_env_that_raises_is_named_and_its_process_mates_are_not_blamed():
+    vector_env = ProcessVectorEnv(TASK, 2, seed=SEED, envs_per_worker=2)
+    vector_env.reset()
+    with pytest.raises(WorkerError, match=r"(?s)worker 1 failed.*initial_state") as error:
+        vector_env.reset(options=[None, {"initial_state": "not a state"}])
+    assert error.value.index == 1
+    _assert_all_dead(vector_env)
+    with pytest.raises(ValueError, match="envs_per_worker"):
+        ProcessVectorEnv(TASK, 2, envs_per_worker=0)

@@ -1,17 +1,24 @@
-"""A process-based vector environment: one sub-task environment per worker process.
+"""A process-based vector environment: sub-task environments in worker processes, one or more per process.
 
-Each worker builds its own :class:`~seqdex_drake.envs.subtask_env.SubtaskEnv` from plain data (the task name and a
-picklable :class:`~seqdex_drake.tasks.base.TaskConfig`), because Drake diagrams, contexts and simulators do not
-pickle; only numpy arrays, floats, dicts and :class:`~seqdex_drake.envs.subtask_env.EnvState` cross the pipes.
+Each worker builds its envs (:class:`~seqdex_drake.envs.subtask_env.SubtaskEnv`) from plain data (the task name
+and a picklable :class:`~seqdex_drake.tasks.base.TaskConfig`), because Drake diagrams, contexts and simulators do
+not pickle; only numpy arrays, floats, dicts and :class:`~seqdex_drake.envs.subtask_env.EnvState` cross the pipes.
 Workers start with ``forkserver`` by default (``spawn`` also works): a plain ``fork`` after the parent used torch
 can hang (see SB3's ``SubprocVecEnv``). No visualizer is ever attached in a worker. The vector-env semantics
 (seeding, autoreset, failures, restarts) live in :class:`~seqdex_drake.envs.vector_base.VectorEnvBase` and are
 shared with the Ray backend (:mod:`seqdex_drake.envs.ray_vector`); this module is the process transport.
 
-Failures are never waited on forever: every answer is awaited on the worker's pipe together with its process
-sentinel and a timeout. A worker that raised (its traceback), died (its exit code or signal) or did not answer in
-``timeout`` seconds raises :class:`WorkerError` naming the worker and the vector env is closed, unless
-``max_restarts`` allows restarting it (see the base class).
+``envs_per_worker`` (default 1) hosts that many consecutive envs in each process: a vector step sends one
+message per process and the process steps its envs one after the other. Fewer processes than envs pay off when
+envs outnumber cores: less inter-process traffic per env step, less memory (one Python and Drake per process),
+and a process's step time is the sum over its envs, whose spread is smaller, so processes wait less for each
+other at every synchronous step. Results do not depend on it: env ``i`` is seeded ``seed + i`` either way.
+
+Failures are never waited on forever: every answer is awaited on the process's pipe together with its process
+sentinel and a timeout. An env that raised (its traceback), or whose process died (its exit code or signal) or
+did not answer in ``timeout`` seconds, raises :class:`WorkerError` naming the env, and the vector env is closed,
+unless ``max_restarts`` allows a restart (see the base class). An env that raised is rebuilt in its process; a
+process that died or hung is killed and started again, and each of its envs counts as one failure.
 """
 
 import multiprocessing as mp
@@ -43,53 +50,65 @@ def _exit_description(exitcode: int | None) -> str:
 
 
 def _worker(index: int, remote, parent_remote, task_name: str, config: TaskConfig | None) -> None:
-    """The worker loop: builds the env, then answers ``(command, data)`` messages until ``close``.
-
-    Every answer is ``("ok", payload)`` or ``("error", traceback text)``; after an error the worker exits.
-    """
+    """The worker loop: answers batches ``[(env, command, data), ...]`` with ``{env: ("ok", payload) or
+    ("error", traceback text)}`` until ``close``. ``add`` builds env ``env`` (its answer is the ``spaces`` one);
+    an env that raised is dropped (the parent adds it again to restart it); the other envs go on."""
     parent_remote.close()
     if "torch" in sys.modules:  # Forked from a process that imported torch: keep it single-threaded.
         sys.modules["torch"].set_num_threads(1)
+    workers: dict[int, EnvWorker] = {}  # No meshcat: visualizers change timing.
     try:
-        worker = EnvWorker(task_name, config)  # No meshcat: visualizers change timing.
-        remote.send(("ok", worker.handle("spaces", None)))
         while True:
-            command, data = remote.recv()
-            if command == "close":
-                remote.send(("ok", None))
+            batch = remote.recv()
+            if batch == "close":
+                remote.send("closed")
                 break
-            remote.send(("ok", worker.handle(command, data)))
+            answers = {}
+            for env, command, data in batch:
+                try:
+                    if command == "add":
+                        workers[env] = EnvWorker(task_name, config)
+                        command = "spaces"
+                    answers[env] = ("ok", workers[env].handle(command, data))
+                except Exception:  # noqa: BLE001 - every failure is reported to the parent with its traceback.
+                    workers.pop(env, None)
+                    answers[env] = ("error", f"worker {env} ({task_name}, process {index}):\n{traceback.format_exc()}")
+            remote.send(answers)
     except (KeyboardInterrupt, EOFError, BrokenPipeError):
         pass  # The parent went away or interrupted us: nothing to report to.
-    except Exception:  # noqa: BLE001 - every failure is reported to the parent with its traceback.
-        try:
-            remote.send(("error", f"worker {index} ({task_name}):\n{traceback.format_exc()}"))
-        except (BrokenPipeError, OSError):
-            pass
     finally:
         remote.close()
 
 
 class ProcessVectorEnv(VectorEnvBase):
-    """``num_envs`` copies of one sub-task environment, each in its own process.
+    """``num_envs`` copies of one sub-task environment in worker processes, ``envs_per_worker`` per process.
 
     Args:
         task_name: a registered sub-task (``seqdex_drake.tasks.registry.task_names()``).
-        num_envs: number of worker processes (one env each).
+        num_envs: number of envs.
         seed: env ``i`` is seeded ``seed + i`` at the first reset.
-        config: the task config for every worker (default: the task's ``default_config()``).
+        config: the task config for every env (default: the task's ``default_config()``).
         start_method: ``"forkserver"`` (default) or ``"spawn"``; ``"fork"`` is accepted but unsafe after torch use.
-        timeout: seconds to wait for the workers' answers to one call (worker start included) before raising
+        timeout: seconds to wait for the workers' answers to one call (env builds included) before raising
             :class:`WorkerError`.
-        max_restarts: how many worker failures (over the env's life) are answered by restarting the worker
-            instead of raising :class:`WorkerError`; 0 (default) raises on the first failure.
+        max_restarts: how many env failures (over the env's life) are answered by restarting instead of raising
+            :class:`WorkerError`; 0 (default) raises on the first failure.
+        envs_per_worker: envs hosted by each process (consecutive envs; the last process may host fewer).
     """
 
     backend = "process"
 
     def __init__(self, task_name: str, num_envs: int, seed: int = 0, config: TaskConfig | None = None,
-                 start_method: str = "forkserver", timeout: float = 300.0, max_restarts: int = 0):
-        self._remotes, self._processes = [None] * num_envs, [None] * num_envs
+                 start_method: str = "forkserver", timeout: float = 300.0, max_restarts: int = 0,
+                 envs_per_worker: int = 1):
+        if not isinstance(envs_per_worker, int) or envs_per_worker < 1:
+            raise ValueError(f"envs_per_worker must be an integer >= 1, got {envs_per_worker!r}")
+        self.envs_per_worker = envs_per_worker
+        self.num_workers = -(-max(num_envs, 1) // envs_per_worker)
+        """Worker processes: ceil(num_envs / envs_per_worker)."""
+        self._remotes, self._processes = [None] * self.num_workers, [None] * self.num_workers
+        self._pending: list[list] = [[] for _ in range(self.num_workers)]  # Requests not yet sent, per process.
+        self._broken = [False] * self.num_workers  # Died, hung or lost its pipe: killed at the next restart.
         self._context = mp.get_context(start_method)
         if start_method == "forkserver":
             self._context.set_forkserver_preload(FORKSERVER_PRELOAD)
@@ -99,63 +118,98 @@ class ProcessVectorEnv(VectorEnvBase):
     # ------------------------------------------------------------------------------------ transport
     @property
     def pids(self) -> list[int]:
-        """Process ids of the workers, in env order."""
-        return [process.pid for process in self._processes]
+        """Process ids of the envs' workers, in env order (envs of one process share its id)."""
+        return [self._processes[self._worker_of(index)].pid for index in range(self.num_envs)]
+
+    def _worker_of(self, index: int) -> int:
+        return index // self.envs_per_worker
 
     def _start_worker(self, index: int) -> None:
-        remote, worker_remote = self._context.Pipe()
-        process = self._context.Process(target=_worker, name=f"{self.task_name}-worker-{index}", daemon=True,
-                                        args=(index, worker_remote, remote, self.task_name, self.config))
-        process.start()
-        worker_remote.close()
-        self._remotes[index], self._processes[index] = remote, process
+        """Starts env ``index``'s process if it is not running, and asks it to build env ``index``."""
+        worker = self._worker_of(index)
+        if self._processes[worker] is None or self._broken[worker]:  # Never started, or killed after a failure.
+            remote, worker_remote = self._context.Pipe()
+            process = self._context.Process(target=_worker, name=f"{self.task_name}-worker-{worker}", daemon=True,
+                                            args=(worker, worker_remote, remote, self.task_name, self.config))
+            process.start()
+            worker_remote.close()
+            self._remotes[worker], self._processes[worker], self._broken[worker] = remote, process, False
+        self._pending[worker].append((index, "add", None))
 
     def _request(self, index: int, command: str, data) -> None:
-        try:
-            self._remotes[index].send((command, data))
-        except (BrokenPipeError, OSError) as error:
-            process = self._processes[index]
-            process.join(timeout=1.0)  # A broken pipe usually means the worker died: say how.
-            status = _exit_description(process.exitcode) if process.exitcode is not None else "still running"
-            raise WorkerError(index, f"could not send '{command}' ({error}); the worker process: {status}") from None
-
-    def _receive(self, index: int, deadline: float):
-        """The payload of worker ``index``'s next answer, or a :class:`WorkerError` (error, death or timeout)."""
-        remote, process = self._remotes[index], self._processes[index]
-        while True:
-            ready = mp.connection.wait([remote, process.sentinel], timeout=max(0.0, deadline - time.monotonic()))
-            if remote in ready or remote.poll():  # An answer (possibly an error report) beats the exit.
-                try:
-                    status, payload = remote.recv()
-                except (EOFError, OSError):
-                    process.join(timeout=1.0)
-                    return WorkerError(index, f"the worker's pipe closed; {_exit_description(process.exitcode)}")
-                return WorkerError(index, payload) if status == "error" else payload
-            if process.sentinel in ready:
-                process.join(timeout=1.0)
-                return WorkerError(index, f"the worker process died: {_exit_description(process.exitcode)}")
-            if time.monotonic() >= deadline:
-                return WorkerError(index, f"no answer within {self.timeout:g} s (process alive: {process.is_alive()})")
+        worker = self._worker_of(index)
+        if self._processes[worker] is None or self._broken[worker]:
+            raise WorkerError(index, f"its worker process {worker} failed earlier and was not restarted")
+        self._pending[worker].append((index, command, data))
 
     def _answers(self, indices) -> dict:
+        """Sends each process its pending requests as one message, then awaits every process's answer."""
         deadline = time.monotonic() + self.timeout
-        return {index: self._receive(index, deadline) for index in indices}
+        sent, answers = {}, {}
+        for worker, batch in enumerate(self._pending):
+            if not batch:
+                continue
+            self._pending[worker] = []
+            try:
+                self._remotes[worker].send(batch)
+                sent[worker] = batch
+            except (BrokenPipeError, OSError) as error:
+                process = self._processes[worker]
+                process.join(timeout=1.0)  # A broken pipe usually means the worker died: say how.
+                status = _exit_description(process.exitcode) if process.exitcode is not None else "still running"
+                self._broken[worker] = True
+                for index, command, _ in batch:
+                    answers[index] = WorkerError(index, f"could not send '{command}' ({error}); the worker "
+                                                        f"process: {status}")
+        for worker, batch in sent.items():
+            reply = self._receive(worker, deadline)
+            for index, _, _ in batch:
+                if isinstance(reply, str):  # The process failed: every env it hosts did.
+                    answers[index] = WorkerError(index, reply)
+                else:
+                    status, payload = reply[index]
+                    answers[index] = WorkerError(index, payload) if status == "error" else payload
+        return {index: answers[index] for index in indices}
+
+    def _receive(self, worker: int, deadline: float):
+        """Process ``worker``'s next answer (a dict), or a description of why none came (death or timeout)."""
+        remote, process = self._remotes[worker], self._processes[worker]
+        while True:
+            ready = mp.connection.wait([remote, process.sentinel], timeout=max(0.0, deadline - time.monotonic()))
+            if remote in ready or remote.poll():  # An answer beats the exit.
+                try:
+                    return remote.recv()
+                except (EOFError, OSError):
+                    process.join(timeout=1.0)
+                    self._broken[worker] = True
+                    return f"the worker's pipe closed; {_exit_description(process.exitcode)}"
+            if process.sentinel in ready:
+                process.join(timeout=1.0)
+                self._broken[worker] = True
+                return f"the worker process died: {_exit_description(process.exitcode)}"
+            if time.monotonic() >= deadline:
+                self._broken[worker] = True
+                return f"no answer within {self.timeout:g} s (process alive: {process.is_alive()})"
 
     def _kill_worker(self, index: int) -> None:
-        process = self._processes[index]
-        if process is None:
+        """Env ``index`` failed: a broken process is killed (the next env start in it starts a new one); a
+        healthy one already dropped the env that raised."""
+        worker = self._worker_of(index)
+        process = self._processes[worker]
+        if process is None or not self._broken[worker]:
             return
         if process.is_alive():  # A stalled worker would not answer 'close' either; SIGKILL also ends SIGSTOP.
             process.kill()
         process.join(timeout=5.0)
-        self._remotes[index].close()
+        self._remotes[worker].close()
 
     def _close_workers(self, timeout: float) -> None:
         started = [(r, p) for r, p in zip(self._remotes, self._processes, strict=True) if p is not None]
+        # (A process killed after a failure is not alive: it is only joined again, and its pipe closed again.)
         for remote, process in started:
             if process.is_alive():
                 try:
-                    remote.send(("close", None))
+                    remote.send("close")
                 except (BrokenPipeError, OSError):
                     pass
         deadline = time.monotonic() + timeout
@@ -167,21 +221,3 @@ class ProcessVectorEnv(VectorEnvBase):
                 process.join(timeout=timeout)
         for remote, _ in started:
             remote.close()
-
-    # ---------------------------------------------------------------------- compatibility (private)
-    def _send(self, index: int, command: str, data=None) -> None:
-        """Sends one raw worker message; on failure closes the env and raises :class:`WorkerError`.
-
-        Kept for callers that predate :meth:`reset_at`; prefer the public methods.
-        """
-        try:
-            self._request(index, command, data)
-        except WorkerError:
-            self.close()
-            raise
-
-    def _gather(self, indices) -> list:
-        """Answers of the workers in ``indices`` (raises :class:`WorkerError` and closes on any failure)."""
-        answers = self._answers(list(indices))
-        self._raise_failures(answers)
-        return [answers[index] for index in indices]
