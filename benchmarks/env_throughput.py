@@ -15,9 +15,10 @@ the env/raw ratio can reach with these observations, however cheap the rest of t
 sampled output ports the read returns the last plant step's torques and costs nothing (ceiling ~1); with
 ``use_sampled_output_ports: false`` it forces one extra discrete contact solve per step.
 
-Vector env (grasp, or every sub-task with ``--all``): ``ProcessVectorEnv`` with 1 and 2 workers, alternating,
-``--vector-steps`` vector steps of zero actions each (automatic resets included); steps/s counts env steps
-(workers x vector steps). ``inprocess_steps_per_s`` is a plain env stepped the same way in this process.
+Vector env (grasp, or every sub-task with ``--all``): ``ProcessVectorEnv`` with 1 and 2 workers, alternating, in
+two layouts: one env per worker, and ``--envs-per-worker`` envs per worker (default 4: 4 envs against 8); each
+runs about ``--vector-steps`` env steps per env slot of zero actions (automatic resets included); steps/s counts
+env steps (envs x vector steps). ``inprocess_steps_per_s`` is a plain env stepped the same way in this process.
 ``other_processes_busy_cores`` is how many cores other processes kept busy during each kept measurement (from
 /proc): a 2-worker speedup on 2 cores is only meaningful when it is near 0.
 ``sync_bound_speedup`` is what the per-step times allow a synchronous vector env: envs seeded 0 and 1 (the two
@@ -28,7 +29,8 @@ loop in 2 processes at once against 1 (summed rates), no env code and no pipes: 
 simulations gain (shared caches and memory bandwidth, clock boost).
 
 The last line is one JSON object; ``env_over_raw_min`` is the smallest env/raw ratio over the sub-tasks measured
-(goal >= 0.90), ``two_worker_speedup`` the 2-worker over the 1-worker rate for grasp (goal >= 1.8 on 2 cores), and
+(goal >= 0.90), ``two_worker_speedup`` the 2-worker over the 1-worker rate for grasp with ``--envs-per-worker``
+envs per worker (goal >= 1.8 on 2 cores; ``two_worker_speedup_1_env_per_worker`` is the same with one), and
 ``failed`` maps a sub-task whose env could not be built or stepped to its error (it is left out of the minimum).
 
     python benchmarks/env_throughput.py [--seconds 3] [--repeats 3] [--vector-steps 300] [--all] [--test]
@@ -130,7 +132,7 @@ def _cpu_seconds(pids: list[int]) -> tuple[float, float] | None:
 def _time_vector(vector_env: ProcessVectorEnv, steps: int) -> tuple[float, float | None]:
     """(env steps/s, cores kept busy by other processes meanwhile) over ``steps`` vector steps of zero actions."""
     actions = np.zeros((vector_env.num_envs, 19))
-    pids = [os.getpid(), *vector_env.pids]
+    pids = [os.getpid(), *sorted(set(vector_env.pids))]  # Envs of one worker share its process.
     before, start = _cpu_seconds(pids), time.perf_counter()
     for _ in range(steps):
         vector_env.step(actions)
@@ -190,30 +192,49 @@ def _step_durations(name: str, seed: int, steps: int) -> np.ndarray:
     return durations
 
 
-def vector(name: str, steps: int, repeats: int) -> dict:
-    """Best-of-``repeats`` env steps/s with 1 and 2 workers (measured alternately) and in this process."""
+def vector(name: str, steps: int, repeats: int, envs_per_worker: int) -> dict:
+    """Best-of-``repeats`` env steps/s with 1 and 2 workers (measured alternately), each hosting 1 env and
+    ``envs_per_worker`` envs, and in this process."""
     durations = [_step_durations(name, seed, steps) for seed in (0, 1)]  # The two workers' envs, in-process.
     inprocess = float(steps / durations[0].sum())
     # A synchronous vector step lasts as long as its slowest env's step: with 2 envs on 2 perfectly parallel
     # cores, throughput is 2 steps per max(t0, t1); one process steps both envs, one after the other.
     sync_bound = float((durations[0] + durations[1]).sum() / np.maximum(*durations).sum())
-    rates, others = {1: 0.0, 2: 0.0}, {1: None, 2: None}
+    layouts = [(workers, k) for k in sorted({1, envs_per_worker}) for workers in (1, 2)]
+    rates, others = dict.fromkeys(layouts, 0.0), dict.fromkeys(layouts)
     start = time.perf_counter()
-    with ProcessVectorEnv(name, 1, seed=0) as one, ProcessVectorEnv(name, 2, seed=0) as two:
+    vector_envs = {}
+    try:
+        for workers, k in layouts:
+            vector_envs[workers, k] = ProcessVectorEnv(name, workers * k, seed=0, envs_per_worker=k)
         startup = time.perf_counter() - start
-        for vector_env in (one, two):
+        for vector_env in vector_envs.values():
             vector_env.reset()
             _time_vector(vector_env, WARMUP_STEPS)
         for _ in range(repeats):
-            for workers, vector_env in ((1, one), (2, two)):
-                rate, other_load = _time_vector(vector_env, steps)
-                if rate > rates[workers]:
-                    rates[workers], others[workers] = rate, other_load
-    return {"inprocess_steps_per_s": round(inprocess, 1), "sync_bound_speedup": round(sync_bound, 3),
-            "workers_1_steps_per_s": round(rates[1], 1),
-            "workers_2_steps_per_s": round(rates[2], 1), "two_worker_speedup": round(rates[2] / rates[1], 3),
-            "startup_s_3_workers": round(startup, 2), "vector_steps": steps,
-            "other_processes_busy_cores": {w: None if v is None else round(v, 2) for w, v in others.items()}}
+            for layout, vector_env in vector_envs.items():
+                rate, other_load = _time_vector(vector_env, max(1, steps // layout[1]))
+                if rate > rates[layout]:
+                    rates[layout], others[layout] = rate, other_load
+    finally:
+        for vector_env in vector_envs.values():
+            vector_env.close()
+    result = {"inprocess_steps_per_s": round(inprocess, 1), "sync_bound_speedup": round(sync_bound, 3)}
+    for k in sorted({1, envs_per_worker}):
+        suffix = "" if k == 1 else f"_{k}_envs_per_worker"
+        result[f"workers_1{suffix}_steps_per_s"] = round(rates[1, k], 1)
+        result[f"workers_2{suffix}_steps_per_s"] = round(rates[2, k], 1)
+        result[f"two_worker_speedup{suffix or '_1_env_per_worker'}"] = round(rates[2, k] / rates[1, k], 3)
+    result.update({"startup_s_all_vector_envs": round(startup, 2), "vector_steps": steps,
+                   "other_processes_busy_cores": {f"{w}x{k}": None if v is None else round(v, 2)
+                                                  for (w, k), v in others.items()}})
+    return result
+
+
+def _speedup(result: dict, envs_per_worker: int) -> float:
+    """The 2-worker speedup of a :func:`vector` result at ``envs_per_worker`` envs per worker."""
+    suffix = "_1_env_per_worker" if envs_per_worker == 1 else f"_{envs_per_worker}_envs_per_worker"
+    return result[f"two_worker_speedup{suffix}"]
 
 
 def main(argv=None):
@@ -223,6 +244,8 @@ def main(argv=None):
     parser.add_argument("--vector-steps", type=int, default=300, help="vector steps per vector measurement")
     parser.add_argument("--tasks", nargs="*", default=None, help="sub-tasks for the single-process part")
     parser.add_argument("--all", action="store_true", help="vector part for every sub-task, not only grasp")
+    parser.add_argument("--envs-per-worker", type=int, default=4,
+                        help="envs each worker hosts in the batched vector layout (1 and this are measured)")
     parser.add_argument("--test", action="store_true", help="a tiny run (a few steps per measurement)")
     args = parser.parse_args(argv)
     if args.test:
@@ -241,13 +264,14 @@ def main(argv=None):
     vector_names = list(single) if args.all else ["grasp"]
     vectors = {}
     for name in vector_names:
-        vectors[name] = vector(name, args.vector_steps, args.repeats)
+        vectors[name] = vector(name, args.vector_steps, args.repeats, args.envs_per_worker)
         vectors[name]["raw_two_process_speedup"] = round(raw_parallel_speedup(name, args.vector_steps,
                                                                               args.repeats), 3)
         print(f"{name:14s} vector env     {vectors[name]}", flush=True)
     summary = {
         "env_over_raw_min": min((result["env_over_raw"] for result in single.values()), default=None),
-        "two_worker_speedup": vectors.get("grasp", next(iter(vectors.values())))["two_worker_speedup"],
+        "two_worker_speedup": _speedup(vectors.get("grasp", next(iter(vectors.values()))), args.envs_per_worker),
+        "envs_per_worker": args.envs_per_worker,
         "single_process": single, "vector": vectors, "failed": failed, "cpu_count": os.cpu_count(),
         "load_average_1min_before_after": [round(load_before[0], 2), round(os.getloadavg()[0], 2)],
         "args": vars(args),

@@ -22,11 +22,14 @@ def _run(script: str, *args: str) -> dict:
 
 
 def test_env_throughput_reports_the_ratios_and_their_references():
-    result = _run("env_throughput.py", "--tasks", "grasp", "tool_grasp")
+    result = _run("env_throughput.py", "--tasks", "grasp", "tool_grasp", "--envs-per-worker", "2")
     assert set(result["single_process"]) == {"grasp", "tool_grasp"} and not result["failed"]
     assert 0 < result["env_over_raw_min"] == min(r["env_over_raw"] for r in result["single_process"].values())
     vector = result["vector"]["grasp"]
-    assert result["two_worker_speedup"] == vector["two_worker_speedup"] > 0
+    assert result["envs_per_worker"] == 2
+    assert result["two_worker_speedup"] == vector["two_worker_speedup_2_envs_per_worker"]
+    assert vector["two_worker_speedup_1_env_per_worker"] > 0 and result["two_worker_speedup"] > 0
+    assert vector["workers_2_2_envs_per_worker_steps_per_s"] > 0
     assert 1.0 <= vector["sync_bound_speedup"] <= 2.0  # max(t0, t1) lies between the mean and the sum
     assert vector["raw_two_process_speedup"] > 0
 
