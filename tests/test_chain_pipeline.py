@@ -54,7 +54,7 @@ def test_every_method_runs_end_to_end_on_the_same_budget(runs, method):
 def test_resume_skips_finished_phases_and_reproduces_the_results(runs, capsys):
     before = json.loads((runs / "seqdex" / "results.json").read_text())
     assert main(["pipeline", "--chain", "handover", "--method", "seqdex", "--test", "--resume", "--run-dir",
-                 str(runs / "seqdex")]) == 0
+                 str(runs / "seqdex"), "--envs-per-worker", "2"]) == 0  # A layout change is no config change.
     after = json.loads((runs / "seqdex" / "results.json").read_text())
     assert after["phases"] == before["phases"] and after["success_rate"] == before["success_rate"]
     assert after["evaluation"] == before["evaluation"]
@@ -95,6 +95,9 @@ def test_bad_input(runs, tmp_path, capsys):
     assert main(["pipeline", "--chain", "handover", "--method", "vchain", "--test", "--resume", "--run-dir",
                  str(runs / "seqdex")]) == 2
     assert "another configuration" in capsys.readouterr().err
+    assert main(["pipeline", "--chain", "handover", "--test", "--envs-per-worker", "0", "--run-dir",
+                 str(tmp_path / "zero")]) == 2
+    assert "--envs-per-worker must be >= 1" in capsys.readouterr().err
     assert main(["finetune", "--run-dir", str(tmp_path / "missing")]) == 2
     assert "holds no pipeline run" in capsys.readouterr().err
 

@@ -119,7 +119,8 @@ class Pipeline:
         if self.config.backend == "process":
             from seqdex_drake.envs.vector import ProcessVectorEnv
 
-            return ProcessVectorEnv(task, self.config.num_envs, seed=seed, config=config)
+            return ProcessVectorEnv(task, self.config.num_envs, seed=seed, config=config,
+                                    envs_per_worker=self.config.envs_per_worker)
         from seqdex_drake.envs.serial import SerialVectorEnv
 
         return SerialVectorEnv([lambda slot=slot: pooled_env(task, config, 1 + slot)

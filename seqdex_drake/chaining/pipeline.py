@@ -81,6 +81,8 @@ class PipelineConfig:
     """Parallel envs of each PPO phase."""
     backend: str = "process"
     """Vector env of the sub-task phases: ``process`` (worker processes) or ``serial`` (in this process)."""
+    envs_per_worker: int = 1
+    """With the process backend, envs each worker process steps in turn (results do not depend on it)."""
     episode_length_cap: int = 0
     """If > 0, every stage's episode is cut to at most this many steps (``--test``)."""
     hidden_sizes: tuple[int, ...] = ()
@@ -94,6 +96,8 @@ class PipelineConfig:
             raise PipelineError(f"unknown method {self.method!r}; methods: {', '.join(METHODS)}")
         if self.backend not in ("process", "serial"):
             raise PipelineError(f"backend must be 'process' or 'serial', got {self.backend!r}")
+        if self.envs_per_worker < 1:
+            raise PipelineError(f"envs_per_worker must be >= 1, got {self.envs_per_worker}")
         self.hidden_sizes = tuple(int(h) for h in self.hidden_sizes)
 
     @classmethod
@@ -123,6 +127,10 @@ def pipeline_budget(config: PipelineConfig, stages: int) -> int:
             + (2 * config.iterations - 1) * (stages - 1) * config.finetune_steps)
 
 
+#: Config fields that set how work is spread over processes, not what is computed: not compared on resume.
+LAYOUT_KEYS = ("envs_per_worker",)
+
+
 class RunDirectory:
     """The files of one pipeline run and its record of finished phases (written atomically)."""
 
@@ -134,6 +142,8 @@ class RunDirectory:
             if not self.record_path.is_file():
                 raise PipelineError(f"--resume: {self.record_path} does not exist; start the run without --resume")
             saved = json.loads(self.record_path.read_text())
+            # How the work is spread over processes changes no result: a run may resume with another layout.
+            saved["config"].update({k: record["config"][k] for k in LAYOUT_KEYS})
             if saved["config"] != record["config"] or saved["stages"] != record["stages"]:
                 changed = sorted(k for k in record["config"] if saved["config"].get(k) != record["config"][k])
                 raise PipelineError(f"--resume: {self.root} was started with another configuration (differs in: "

@@ -39,6 +39,7 @@ def add_parsers(commands) -> None:
     pipeline.add_argument("--eval-episodes", type=int, help="chain episodes of the final evaluation")
     pipeline.add_argument("--lambda2", type=float, help="weight of the transition bonus (lambda1 is 1)")
     pipeline.add_argument("--backend", choices=["process", "serial"], help="vector env of the PPO phases")
+    pipeline.add_argument("--envs-per-worker", type=int, help="process backend: envs per worker process (default 1)")
     _common(pipeline, "continue the run in --run-dir where it stopped (same flags)")
 
     feasibility = commands.add_parser("feasibility", help="train a stage's transition feasibility function",
@@ -87,7 +88,8 @@ def run_pipeline(args) -> int:
     overrides = {key: value for key, value in (
         ("stage_steps", args.stage_steps), ("finetune_steps", args.finetune_steps), ("iterations", args.iterations),
         ("transition_episodes", args.transition_episodes), ("eval_episodes", args.eval_episodes),
-        ("lambda2", args.lambda2), ("backend", args.backend)) if value is not None}
+        ("lambda2", args.lambda2), ("backend", args.backend), ("envs_per_worker", args.envs_per_worker))
+        if value is not None}
     for key, value in overrides.items():
         if key != "backend" and key != "lambda2" and value < 1:
             raise CliError(f"--{key.replace('_', '-')} must be >= 1, got {value}")

@@ -122,7 +122,10 @@ def run(args) -> int:
         run_dir.mkdir(parents=True, exist_ok=True)
         (run_dir / "config.json").write_text(json.dumps(record, indent=2) + "\n")
         (run_dir / "scenario.yaml").write_text(DumpScenario(LoadScenario(config.scenario)))
-    vec_env = ProcessVectorEnv(args.task, ppo_config.num_envs, seed=ppo_config.seed, config=config)
+    if args.envs_per_worker < 1:
+        raise CliError(f"--envs-per-worker must be >= 1, got {args.envs_per_worker}")
+    vec_env = ProcessVectorEnv(args.task, ppo_config.num_envs, seed=ppo_config.seed, config=config,
+                               envs_per_worker=args.envs_per_worker)
     try:
         if buffer is not None:
             _check_state_layout(vec_env, buffer)
