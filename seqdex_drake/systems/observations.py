@@ -57,15 +57,16 @@ def cross3(a, b) -> np.ndarray:
 
 
 def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of quaternions [w, x, y, z]."""
-    w0, v0, w1, v1 = a[0], a[1:], b[0], b[1:]
-    return np.concatenate([[w0 * w1 - v0 @ v1], w0 * v1 + w1 * v0 + cross3(v0, v1)])
+    """Hamilton product of quaternions [w, x, y, z] (float arithmetic: numpy's per-call overhead would be most
+    of the cost of four-element maths, run every env step)."""
+    a0, a1, a2, a3 = (float(x) for x in a)
+    b0, b1, b2, b3 = (float(x) for x in b)
+    return np.array([a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3, a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
+                     a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1, a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0])
 
 
 def quat_conjugate(q: np.ndarray) -> np.ndarray:
-    conjugate = -np.asarray(q, dtype=float)
-    conjugate[0] = -conjugate[0]
-    return conjugate
+    return np.array([q[0], -q[1], -q[2], -q[3]], dtype=float)
 
 
 def pose_vector(X) -> np.ndarray:

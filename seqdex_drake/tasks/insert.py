@@ -7,6 +7,8 @@ stands on the baseplate (frozen: a static support), the block's goal is stud-ali
 formula. Success (release): within 0.02 m and 0.2 rad of the goal, a 180 deg yaw flip counting as the goal.
 """
 
+import math
+
 import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw
 
@@ -48,7 +50,7 @@ def goal_errors(env) -> tuple[float, float]:
     pose = pose_vector(env.object_pose())
     goal = env.goal
     rotation = min(quaternion_angle(pose[3:], goal[3:]), quaternion_angle(pose[3:], quat_multiply(goal[3:], YAW_FLIP)))
-    return float(np.linalg.norm(pose[:3] - goal[:3])), rotation
+    return math.dist(pose[:3], goal[:3]), rotation
 
 
 class InsertTask(Task):

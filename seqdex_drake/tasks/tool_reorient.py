@@ -10,6 +10,8 @@ goal (173).
 Reward: the paper's In-hand Orientation formula. Success: orientation error below 0.5 rad (FACTS.md).
 """
 
+import math
+
 from pydrake.math import RigidTransform, RotationMatrix
 
 from seqdex_drake.systems.observations import pose_vector
@@ -29,7 +31,7 @@ def default_config() -> TaskConfig:
 
 def goal_errors(env) -> tuple[float, float]:
     pose = pose_vector(env.object_pose())
-    return float(((pose[:3] - env.goal[:3]) ** 2).sum() ** 0.5), quaternion_angle(pose[3:], env.goal[3:])
+    return math.dist(pose[:3], env.goal[:3]), quaternion_angle(pose[3:], env.goal[3:])
 
 
 class ToolReorientTask(Task):
