@@ -17,6 +17,10 @@ REGISTRY = {
 }
 
 
+#: The paper's six sub-tasks (Building Blocks and Tool Positioning); the others serve the hand-over chain.
+PAPER_TASKS = ("search", "orient", "grasp", "insert", "tool_grasp", "tool_reorient")
+
+
 def task_names() -> list[str]:
     return list(REGISTRY)
 
