@@ -112,6 +112,7 @@ class SubtaskEnv(gym.Env):
         self._scratch = None  # The plant context RefreshSampledOutputs computes into (allocated once).
         self._hand_target = np.array(ALLEGRO_OPEN_Q)
         self._previous_action = np.zeros(ACTION_SIZE)
+        self._arm_desired, self._hand_desired = np.zeros(14), np.zeros(32)  # Written into the sources per step.
         self.randomizer = DomainRandomizer(self, self.config.randomization)  # DR hook (envs/randomization.py)
 
     # ------------------------------------------------------------------------------------------- state
@@ -209,10 +210,11 @@ class SubtaskEnv(gym.Env):
 
     def _set_sources(self, arm_q, hand_q, previous_action, arm_v=None) -> None:
         arm_v = np.zeros(7) if arm_v is None else np.asarray(arm_v, dtype=float)
+        self._arm_desired[:7], self._arm_desired[7:] = arm_q, arm_v  # Desired states [q, v]; the hand's v is 0.
+        self._hand_desired[:16] = hand_q
         for source, context, value in zip((self._arm_source, self._hand_source, self._action_source),
-                                          self._source_contexts, (np.concatenate([arm_q, arm_v]),
-                                                                  np.concatenate([hand_q, np.zeros(16)]),
-                                                                  previous_action), strict=True):
+                                          self._source_contexts,
+                                          (self._arm_desired, self._hand_desired, previous_action), strict=True):
             source.get_mutable_source_value(context).SetFromVector(value)
         self._arm_target = np.array(arm_q, dtype=float)
         self._arm_velocity_target = arm_v

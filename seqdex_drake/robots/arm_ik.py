@@ -60,11 +60,12 @@ class PalmIK:
         X_WPc = self.palm_pose(q_arm)
         J = self.plant.CalcJacobianSpatialVelocity(self.context, JacobianWrtVariable.kQDot, self.palm,
                                                    self.p_PalmC_Palm, self._world, self._world)
-        position_error = np.asarray(p_WC_target) - X_WPc.translation()
         rotation_error = (R_WP_target @ X_WPc.rotation().inverse()).ToAngleAxis()
-        error = np.concatenate([self.orientation_weight * rotation_error.angle() * rotation_error.axis(),
-                                position_error])
-        J = np.concatenate([self.orientation_weight * J[:3], J[3:]])
+        error = np.empty(6)
+        error[:3] = (self.orientation_weight * rotation_error.angle()) * rotation_error.axis()
+        error[3:] = p_WC_target
+        error[3:] -= X_WPc.translation()
+        J[:3] *= self.orientation_weight  # J is our own fresh array.
         if self._damping_eye[0] != self.damping:
             self._damping_eye = (self.damping, self.damping**2 * np.eye(6))
         dq = J.T @ np.linalg.solve(J @ J.T + self._damping_eye[1], error)
