@@ -3,14 +3,15 @@
 Single process, per registered sub-task: the env is reset (seed 0), stepped a few times with zero actions, and its
 state saved. From that state, ``env_steps_per_s`` times ``SubtaskEnv.step`` with zero actions (IK, observation,
 reward terms, wake check) for about ``--seconds``; then, from the same state, ``raw_steps_per_s`` times the same
-number of control periods with ``env.simulator.AdvanceTo`` alone, one call per period, the last targets held (no
-env code). Zero actions keep the targets where the warm-up left them, so both runs simulate nearly the same motion.
-Where the env woke or re-froze objects (Search's pile), the raw loop applies the same frozen sets at the same
-periods, off the clock, so both simulate the same free bodies (without that, Search's raw loop kept every
-disturbed block frozen and cheap, and env/raw compared different physics).
+number of control periods with ``env.simulator.AdvanceTo`` alone, one call per period (no env code), replaying what
+the env did between its calls, off the clock: the targets each env step wrote, and the frozen sets where the env
+woke or re-froze objects (Search's pile). Both runs then simulate exactly the same trajectory
+(``raw_replays_env_exactly`` checks that they end in bit-identical states), and env / raw is the cost of the env's
+own code alone. (Earlier versions held the last targets and ran no wake check, so the two runs moved differently:
+Orient's raw loop came out slower than the env, Search's kept disturbed blocks frozen and cheap.)
 The two alternate ``--repeats`` times and the best of each is kept (other processes may load the CPU).
-``raw_with_tactile_solve_steps_per_s`` adds to the raw loop only the motor-tactile read (the hand's net actuation,
-with the targets then rewritten, as every env step does); ``env_over_raw_ceiling`` = that rate / raw is the most
+``raw_with_tactile_solve_steps_per_s`` adds to the raw loop only the motor-tactile read (the hand's net
+actuation); ``env_over_raw_ceiling`` = that rate / raw is the most
 the env/raw ratio can reach with these observations, however cheap the rest of the env step. With the scenarios'
 sampled output ports the read returns the last plant step's torques and costs nothing (ceiling ~1); with
 ``use_sampled_output_ports: false`` it forces one extra discrete contact solve per step.
@@ -53,47 +54,59 @@ from seqdex_drake.tasks.registry import PAPER_TASKS, make_env, task_names
 WARMUP_STEPS = 5
 
 
-def _time_env(env, state, seconds: float, max_steps: int) -> tuple[int, float, list[np.ndarray]]:
-    """Steps with zero actions from ``state`` for about ``seconds``; returns (steps, elapsed s in ``step``, the
-    frozen-object mask after each step)."""
+def _sources(env) -> list:
+    """The env's target sources (arm and hand desired states, previous action) with their contexts."""
+    return [(source, source.GetMyMutableContextFromRoot(env.context))
+            for source in (env._arm_source, env._hand_source, env._action_source)]
+
+
+def _time_env(env, state, seconds: float, max_steps: int) -> tuple[int, float, list]:
+    """Steps with zero actions from ``state`` for about ``seconds``; returns (steps, elapsed s in ``step``, what
+    each step left for :func:`_time_raw` to replay: the targets it wrote and the frozen-object mask after it)."""
     env.reset(options={"initial_state": state})
-    action, steps, elapsed, masks = np.zeros(env.action_space.shape), 0, 0.0, []
+    action, steps, elapsed, replay = np.zeros(env.action_space.shape), 0, 0.0, []
+    sources = _sources(env)
     while steps < max_steps and (steps == 0 or elapsed < seconds):
         start = time.perf_counter()
         env.step(action)
         elapsed += time.perf_counter() - start
-        masks.append(env.objects.frozen_mask(env.context))
+        replay.append(([source.get_source_value(context).CopyToVector() for source, context in sources],
+                       env.objects.frozen_mask(env.context)))
         steps += 1
-    return steps, elapsed, masks
+    replay.append(env.plant.GetPositionsAndVelocities(env.plant_context).copy())  # Where the env ended.
+    return steps, elapsed, replay
 
 
-def _time_raw(env, state, steps: int, masks: list[np.ndarray] | None = None, tactile: bool = False) -> float:
-    """Elapsed s for ``steps`` control periods of ``Simulator.AdvanceTo`` alone, from ``state``.
+def _time_raw(env, state, steps: int, replay: list | None = None, tactile: bool = False) -> tuple[float, bool]:
+    """Elapsed s for ``steps`` control periods of ``Simulator.AdvanceTo`` alone, from ``state``, and whether the
+    run ended exactly where the env's did.
 
-    With ``masks`` (the env run's frozen-object masks), each period starts with the objects frozen as the env's
-    did, applied off the clock: both runs then simulate the same free bodies, and deciding to wake (the wake
-    check) and re-pinning stay on the env's side. With ``tactile``, each period also pays what the
-    motor-tactile observation costs on any env step: the hand's net actuation read at the new state (free with
-    sampled output ports, else a discrete contact solve with the current targets), after which new targets are
-    written (here the same values), as an env step does.
+    With ``replay`` (from :func:`_time_env`), each period first gets the targets the env wrote for it and the
+    objects frozen as the env left them, both off the clock: the raw loop then simulates exactly the env's
+    trajectory, so env / raw compares the same physics with and without the env's code (the IK, observation,
+    reward, success test and wake check). Without it, the last targets are held. With ``tactile``, each period
+    also pays what the motor-tactile observation costs on any env step: the hand's net actuation read at the
+    new state (free with sampled output ports, else a discrete contact solve with the current targets).
     """
     env.reset(options={"initial_state": state})
-    t0, period = env.context.get_time(), env.scenario.control_period
-    hand = env._hand_source
-    hand_context = hand.GetMyMutableContextFromRoot(env.context)
-    target = hand.get_source_value(hand_context).CopyToVector()
+    period = env.scenario.control_period
+    sources = _sources(env)
     current, elapsed = env.objects.frozen_mask(env.context), 0.0
     for k in range(1, steps + 1):
-        if masks is not None and k > 1 and not np.array_equal(masks[k - 2], current):
-            current = masks[k - 2]
-            env.objects.set_frozen(env.context, current)
+        if replay is not None:
+            for (source, context), value in zip(sources, replay[k - 1][0], strict=True):
+                source.get_mutable_source_value(context).SetFromVector(value)
+            if k > 1 and not np.array_equal(replay[k - 2][1], current):
+                current = replay[k - 2][1]
+                env.objects.set_frozen(env.context, current)
         start = time.perf_counter()
-        env.simulator.AdvanceTo(t0 + k * period)
+        env.simulator.AdvanceTo(env.context.get_time() + period)  # As env.step does (rounding decides steps).
         if tactile:
             env.hand_torque()
-            hand.get_mutable_source_value(hand_context).SetFromVector(target)
         elapsed += time.perf_counter() - start
-    return elapsed
+    exact = replay is not None and np.array_equal(env.plant.GetPositionsAndVelocities(env.plant_context),
+                                                  replay[-1])
+    return elapsed, exact
 
 
 def single_process(name: str, seconds: float, repeats: int) -> dict:
@@ -105,13 +118,15 @@ def single_process(name: str, seconds: float, repeats: int) -> dict:
     state = env.get_state()
     max_steps = env.config.episode_length - 1  # Stay inside one episode (no truncation).
     env_rate = raw_rate = tactile_rate = 0.0
+    replays_exactly = True
     for _ in range(repeats):
-        steps, elapsed, masks = _time_env(env, state, seconds, max_steps)
+        steps, elapsed, replay = _time_env(env, state, seconds, max_steps)
         env_rate = max(env_rate, steps / elapsed)
-        raw_rate = max(raw_rate, steps / _time_raw(env, state, steps, masks))
-        tactile_rate = max(tactile_rate, steps / _time_raw(env, state, steps, masks, tactile=True))
+        raw_elapsed, exact = _time_raw(env, state, steps, replay)
+        raw_rate, replays_exactly = max(raw_rate, steps / raw_elapsed), replays_exactly and exact
+        tactile_rate = max(tactile_rate, steps / _time_raw(env, state, steps, replay, tactile=True)[0])
     return {"env_steps_per_s": round(env_rate, 1), "raw_steps_per_s": round(raw_rate, 1),
-            "env_over_raw": round(env_rate / raw_rate, 3), "steps": steps,
+            "env_over_raw": round(env_rate / raw_rate, 3), "steps": steps, "raw_replays_env_exactly": replays_exactly,
             "raw_with_tactile_solve_steps_per_s": round(tactile_rate, 1),
             "env_over_raw_ceiling": round(tactile_rate / raw_rate, 3)}
 
@@ -153,7 +168,7 @@ def _raw_worker(name: str, steps: int, barrier, results) -> None:
         env.step(np.zeros(env.action_space.shape))
     state = env.get_state()
     barrier.wait()
-    results.put(steps / _time_raw(env, state, steps))
+    results.put(steps / _time_raw(env, state, steps)[0])
 
 
 def raw_parallel_speedup(name: str, steps: int, repeats: int) -> float:

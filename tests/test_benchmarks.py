@@ -26,6 +26,7 @@ def test_env_throughput_reports_the_ratios_and_their_references():
     assert set(result["single_process"]) == {"grasp", "tool_grasp"} and not result["failed"]
     assert 0 < result["env_over_raw_min"] == min(r["env_over_raw"] for r in result["single_process"].values())
     assert result["env_over_raw_min_all_tasks"] == result["env_over_raw_min"]  # Both measured tasks are the paper's.
+    assert all(r["raw_replays_env_exactly"] for r in result["single_process"].values())  # Same physics timed.
     vector = result["vector"]["grasp"]
     assert result["envs_per_worker"] == 2
     assert result["two_worker_speedup"] == vector["two_worker_speedup_2_envs_per_worker"]
