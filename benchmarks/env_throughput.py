@@ -9,7 +9,9 @@ woke or re-froze objects (Search's pile). Both runs then simulate exactly the sa
 (``raw_replays_env_exactly`` checks that they end in bit-identical states), and env / raw is the cost of the env's
 own code alone. (Earlier versions held the last targets and ran no wake check, so the two runs moved differently:
 Orient's raw loop came out slower than the env, Search's kept disturbed blocks frozen and cheap.)
-The two alternate ``--repeats`` times and the best of each is kept (other processes may load the CPU).
+The two alternate ``--repeats`` times and the times are summed: ratios of sums, so that the machine's speed, which
+drifts by 20-30 % within minutes here, weighs on both sides alike (best-of-N rates did not: the best of each side
+could come from different minutes).
 ``raw_with_tactile_solve_steps_per_s`` adds to the raw loop only the motor-tactile read (the hand's net
 actuation); ``env_over_raw_ceiling`` = that rate / raw is the most
 the env/raw ratio can reach with these observations, however cheap the rest of the env step. With the scenarios'
@@ -110,25 +112,25 @@ def _time_raw(env, state, steps: int, replay: list | None = None, tactile: bool 
 
 
 def single_process(name: str, seconds: float, repeats: int) -> dict:
-    """Best-of-``repeats`` env and raw step rates of sub-task ``name`` in this process."""
+    """Env and raw step rates of sub-task ``name`` in this process, over ``repeats`` alternating runs."""
     env = make_env(name)
     env.reset(seed=0)
     for _ in range(WARMUP_STEPS):
         env.step(np.zeros(env.action_space.shape))
     state = env.get_state()
     max_steps = env.config.episode_length - 1  # Stay inside one episode (no truncation).
-    env_rate = raw_rate = tactile_rate = 0.0
-    replays_exactly = True
+    total_steps, env_time, raw_time, tactile_time, replays_exactly = 0, 0.0, 0.0, 0.0, True
     for _ in range(repeats):
         steps, elapsed, replay = _time_env(env, state, seconds, max_steps)
-        env_rate = max(env_rate, steps / elapsed)
         raw_elapsed, exact = _time_raw(env, state, steps, replay)
-        raw_rate, replays_exactly = max(raw_rate, steps / raw_elapsed), replays_exactly and exact
-        tactile_rate = max(tactile_rate, steps / _time_raw(env, state, steps, replay, tactile=True)[0])
-    return {"env_steps_per_s": round(env_rate, 1), "raw_steps_per_s": round(raw_rate, 1),
-            "env_over_raw": round(env_rate / raw_rate, 3), "steps": steps, "raw_replays_env_exactly": replays_exactly,
-            "raw_with_tactile_solve_steps_per_s": round(tactile_rate, 1),
-            "env_over_raw_ceiling": round(tactile_rate / raw_rate, 3)}
+        total_steps, env_time, raw_time = total_steps + steps, env_time + elapsed, raw_time + raw_elapsed
+        tactile_time += _time_raw(env, state, steps, replay, tactile=True)[0]
+        replays_exactly = replays_exactly and exact
+    return {"env_steps_per_s": round(total_steps / env_time, 1), "raw_steps_per_s": round(total_steps / raw_time, 1),
+            "env_over_raw": round(raw_time / env_time, 3), "steps": total_steps,
+            "raw_replays_env_exactly": replays_exactly,
+            "raw_with_tactile_solve_steps_per_s": round(total_steps / tactile_time, 1),
+            "env_over_raw_ceiling": round(raw_time / tactile_time, 3)}
 
 
 def _cpu_seconds(pids: list[int]) -> tuple[float, float] | None:
@@ -147,17 +149,17 @@ def _cpu_seconds(pids: list[int]) -> tuple[float, float] | None:
     return busy / ticks, own / ticks
 
 
-def _time_vector(vector_env: ProcessVectorEnv, steps: int) -> tuple[float, float | None]:
-    """(env steps/s, cores kept busy by other processes meanwhile) over ``steps`` vector steps of zero actions."""
+def _time_vector(vector_env: ProcessVectorEnv, steps: int) -> tuple[int, float, float | None]:
+    """(env steps, elapsed s, CPU seconds other processes used meanwhile) over ``steps`` vector steps of zero
+    actions."""
     actions = np.zeros((vector_env.num_envs, 19))
     pids = [os.getpid(), *sorted(set(vector_env.pids))]  # Envs of one worker share its process.
     before, start = _cpu_seconds(pids), time.perf_counter()
     for _ in range(steps):
         vector_env.step(actions)
     elapsed, after = time.perf_counter() - start, _cpu_seconds(pids)
-    others = None if before is None or after is None else max(
-        0.0, ((after[0] - before[0]) - (after[1] - before[1])) / elapsed)
-    return vector_env.num_envs * steps / elapsed, others
+    others = None if before is None or after is None else max(0.0, (after[0] - before[0]) - (after[1] - before[1]))
+    return vector_env.num_envs * steps, elapsed, others
 
 
 def _raw_worker(name: str, steps: int, barrier, results) -> None:
@@ -173,10 +175,11 @@ def _raw_worker(name: str, steps: int, barrier, results) -> None:
 
 def raw_parallel_speedup(name: str, steps: int, repeats: int) -> float:
     """How well the simulation itself scales over processes: the summed raw ``AdvanceTo`` rate of 2 processes
-    running at once over that of 1 (best of ``repeats`` each). No env code and no inter-process traffic, so
-    this is the most a 2-worker vector env can gain on this machine (shared caches, memory bandwidth, clocks)."""
+    running at once over that of 1 (means over ``repeats`` alternating runs). No env code and no inter-process
+    traffic, so this is the most a 2-worker vector env can gain on this machine (shared caches, memory
+    bandwidth, clocks)."""
     context = multiprocessing.get_context("spawn")
-    best = {1: 0.0, 2: 0.0}
+    summed = {1: 0.0, 2: 0.0}
     for _ in range(repeats):
         for count in (1, 2):
             barrier, results = context.Barrier(count), context.Queue()
@@ -191,8 +194,8 @@ def raw_parallel_speedup(name: str, steps: int, repeats: int) -> float:
                     worker.join(timeout=60)
                     if worker.is_alive():
                         worker.kill()
-            best[count] = max(best[count], rate)
-    return best[2] / best[1]
+            summed[count] += rate
+    return summed[2] / summed[1]
 
 
 def _step_durations(name: str, seed: int, steps: int) -> np.ndarray:
@@ -211,15 +214,15 @@ def _step_durations(name: str, seed: int, steps: int) -> np.ndarray:
 
 
 def vector(name: str, steps: int, repeats: int, envs_per_worker: int) -> dict:
-    """Best-of-``repeats`` env steps/s with 1 and 2 workers (measured alternately), each hosting 1 env and
-    ``envs_per_worker`` envs, and in this process."""
+    """Env steps/s with 1 and 2 workers, each hosting 1 env and ``envs_per_worker`` envs (``repeats``
+    alternating runs, summed), and in this process."""
     durations = [_step_durations(name, seed, steps) for seed in (0, 1)]  # The two workers' envs, in-process.
     inprocess = float(steps / durations[0].sum())
     # A synchronous vector step lasts as long as its slowest env's step: with 2 envs on 2 perfectly parallel
     # cores, throughput is 2 steps per max(t0, t1); one process steps both envs, one after the other.
     sync_bound = float((durations[0] + durations[1]).sum() / np.maximum(*durations).sum())
     layouts = [(workers, k) for k in sorted({1, envs_per_worker}) for workers in (1, 2)]
-    rates, others = dict.fromkeys(layouts, 0.0), dict.fromkeys(layouts)
+    totals = {layout: [0, 0.0, 0.0] for layout in layouts}  # env steps, elapsed s, other processes' CPU s
     start = time.perf_counter()
     vector_envs = {}
     try:
@@ -229,14 +232,16 @@ def vector(name: str, steps: int, repeats: int, envs_per_worker: int) -> dict:
         for vector_env in vector_envs.values():
             vector_env.reset()
             _time_vector(vector_env, WARMUP_STEPS)
-        for _ in range(repeats):
+        for _ in range(repeats):  # Alternating, summed: the machine's speed drifts alike for every layout.
             for layout, vector_env in vector_envs.items():
-                rate, other_load = _time_vector(vector_env, max(1, steps // layout[1]))
-                if rate > rates[layout]:
-                    rates[layout], others[layout] = rate, other_load
+                env_steps, elapsed, others = _time_vector(vector_env, max(1, steps // layout[1]))
+                total = totals[layout]
+                total[0], total[1] = total[0] + env_steps, total[1] + elapsed
+                total[2] = None if others is None or total[2] is None else total[2] + others
     finally:
         for vector_env in vector_envs.values():
             vector_env.close()
+    rates = {layout: total[0] / total[1] for layout, total in totals.items()}
     result = {"inprocess_steps_per_s": round(inprocess, 1), "sync_bound_speedup": round(sync_bound, 3)}
     for k in sorted({1, envs_per_worker}):
         suffix = "" if k == 1 else f"_{k}_envs_per_worker"
@@ -244,8 +249,8 @@ def vector(name: str, steps: int, repeats: int, envs_per_worker: int) -> dict:
         result[f"workers_2{suffix}_steps_per_s"] = round(rates[2, k], 1)
         result[f"two_worker_speedup{suffix or '_1_env_per_worker'}"] = round(rates[2, k] / rates[1, k], 3)
     result.update({"startup_s_all_vector_envs": round(startup, 2), "vector_steps": steps,
-                   "other_processes_busy_cores": {f"{w}x{k}": None if v is None else round(v, 2)
-                                                  for (w, k), v in others.items()}})
+                   "other_processes_busy_cores": {f"{w}x{k}": None if t[2] is None else round(t[2] / t[1], 2)
+                                                  for (w, k), t in totals.items()}})
     return result
 
 
@@ -258,7 +263,7 @@ def _speedup(result: dict, envs_per_worker: int) -> float:
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seconds", type=float, default=3.0, help="seconds per single-process env measurement")
-    parser.add_argument("--repeats", type=int, default=3, help="alternating repeats; the best is kept")
+    parser.add_argument("--repeats", type=int, default=3, help="alternating repeats, summed")
     parser.add_argument("--vector-steps", type=int, default=300, help="vector steps per vector measurement")
     parser.add_argument("--tasks", nargs="*", default=None, help="sub-tasks for the single-process part")
     parser.add_argument("--all", action="store_true", help="vector part for every sub-task, not only grasp")
