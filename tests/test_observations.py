@@ -30,7 +30,7 @@ def _body_rows(env, frames) -> np.ndarray:
 
 
 def test_observation_matches_the_plants_kinematics(env):
-    obs = env._raw_observation()
+    obs = env.raw_observation()
     plant, context = env.plant, env.plant_context
     q, v = plant.GetPositions(context, env.arm), plant.GetVelocities(context, env.arm)
     np.testing.assert_array_equal(obs[:7], q)

@@ -142,14 +142,14 @@ class SubtaskEnv(gym.Env):
         ``SceneObjects.hand_points``: the tips from the observation (cached by Drake until the state changes,
         so the step's own observation serves every call), the palm centre from the plant's cached kinematics."""
         points = np.empty((5, 3))
-        points[:4] = self._raw_observation()[46:98].reshape(4, 13)[:, :3]
+        points[:4] = self.raw_observation()[46:98].reshape(4, 13)[:, :3]
         X_WPalm = self.plant.EvalBodyPoseInWorld(self.plant_context, self._palm_body)
         points[4] = X_WPalm.rotation().matrix() @ p_PalmPc_Palm + X_WPalm.translation()
         return points
 
     def fingertip_distance(self) -> float:
         """Sum of the four fingertips' distances to the target object's centre (the paper's Sigma f)."""
-        offsets = self._raw_observation()[46:98].reshape(4, 13)[:, :3] - self.object_position()
+        offsets = self.raw_observation()[46:98].reshape(4, 13)[:, :3] - self.object_position()
         return float(np.sqrt(np.einsum("ij,ij->i", offsets, offsets)).sum())
 
     def hand_torque(self) -> np.ndarray:
@@ -220,12 +220,14 @@ class SubtaskEnv(gym.Env):
         self._arm_velocity_target = arm_v
         self._previous_action = np.array(previous_action, dtype=float)
 
-    def _raw_observation(self) -> np.ndarray:
-        """The assembled observation (float64, before any noise); Drake caches it until the state changes."""
+    def raw_observation(self) -> np.ndarray:
+        """The assembled observation (float64, before any observation noise). Drake caches it until the state
+        changes, so after a step every read of it (tasks' rewards and success tests) is a copy, not a
+        recomputation."""
         return self.assembler.get_output_port().Eval(self._assembler_context)
 
     def observation(self) -> np.ndarray:
-        return self._raw_observation().astype(np.float32)
+        return self.raw_observation().astype(np.float32)
 
     # ------------------------------------------------------------------------------------------ gym API
     def reset(self, *, seed=None, options=None):

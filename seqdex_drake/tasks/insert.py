@@ -47,10 +47,11 @@ def goal_pose(block_type: int, layers: int, cell: tuple[int, int], yaw: float) -
 
 def goal_errors(env) -> tuple[float, float]:
     """Position (m) and rotation (rad) errors of the block's origin frame to the goal, yaw-flip symmetric."""
-    pose = pose_vector(env.object_pose())
-    goal = env.goal
-    rotation = min(quaternion_angle(pose[3:], goal[3:]), quaternion_angle(pose[3:], quat_multiply(goal[3:], YAW_FLIP)))
-    return math.dist(pose[:3], goal[:3]), rotation
+    observation = env.raw_observation()  # Its goal part: goal - position, goal * conj(object quaternion).
+    error = observation[169:173]
+    rotation = 2.0 * math.asin(min(math.sqrt(error[1] ** 2 + error[2] ** 2 + error[3] ** 2), 1.0))
+    flipped = quaternion_angle(observation[114:118], quat_multiply(env.goal[3:], YAW_FLIP))
+    return math.sqrt(float(observation[166:169] @ observation[166:169])), min(rotation, flipped)
 
 
 class InsertTask(Task):

@@ -17,7 +17,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from seqdex_drake.systems.observations import pose_vector
 from seqdex_drake.tasks.base import Task, TaskConfig
 from seqdex_drake.tasks.handoff import synthesized_tool_grasp
-from seqdex_drake.tasks.rewards import RewardWeights, goal_reward, quaternion_angle
+from seqdex_drake.tasks.rewards import RewardWeights, goal_reward
 from seqdex_drake.tasks.tools_common import tool_name
 
 
@@ -30,8 +30,12 @@ def default_config() -> TaskConfig:
 
 
 def goal_errors(env) -> tuple[float, float]:
-    pose = pose_vector(env.object_pose())
-    return math.dist(pose[:3], env.goal[:3]), quaternion_angle(pose[3:], env.goal[3:])
+    """Position (m) and rotation (rad) errors of the tool's origin frame to the goal, from the observation's goal
+    part (goal - position, goal * conj(object quaternion))."""
+    observation = env.raw_observation()
+    error = observation[169:173]
+    rotation = 2.0 * math.asin(min(math.sqrt(error[1] ** 2 + error[2] ** 2 + error[3] ** 2), 1.0))
+    return math.sqrt(float(observation[166:169] @ observation[166:169])), rotation
 
 
 class ToolReorientTask(Task):
