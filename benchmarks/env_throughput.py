@@ -19,7 +19,8 @@ sampled output ports the read returns the last plant step's torques and costs no
 ``use_sampled_output_ports: false`` it forces one extra discrete contact solve per step.
 
 Vector env (grasp, or every sub-task with ``--all``): ``ProcessVectorEnv`` with 1 and 2 workers, alternating, in
-two layouts: one env per worker, and ``--envs-per-worker`` envs per worker (default 4: 4 envs against 8); each
+two layouts: one env per worker, and ``--envs-per-worker`` envs per worker (default 8: 8 envs against 16, PPO's
+default ``num_envs`` on 2 workers); each
 runs about ``--vector-steps`` env steps per env slot of zero actions (automatic resets included); steps/s counts
 env steps (envs x vector steps). ``inprocess_steps_per_s`` is a plain env stepped the same way in this process.
 ``other_processes_busy_cores`` is how many cores other processes kept busy during each kept measurement (from
@@ -38,7 +39,7 @@ over the 1-worker rate for grasp with ``--envs-per-worker`` envs per worker (goa
 ``two_worker_speedup_1_env_per_worker`` is the same with one env per worker), and ``failed`` maps a sub-task
 whose env could not be built or stepped to its error (it is left out of the minimum).
 
-    python benchmarks/env_throughput.py [--seconds 3] [--repeats 3] [--vector-steps 300] [--envs-per-worker 4]
+    python benchmarks/env_throughput.py [--seconds 3] [--repeats 3] [--vector-steps 300] [--envs-per-worker 8]
                                         [--all] [--test]
 """
 
@@ -267,8 +268,9 @@ def main(argv=None):
     parser.add_argument("--vector-steps", type=int, default=300, help="vector steps per vector measurement")
     parser.add_argument("--tasks", nargs="*", default=None, help="sub-tasks for the single-process part")
     parser.add_argument("--all", action="store_true", help="vector part for every sub-task, not only grasp")
-    parser.add_argument("--envs-per-worker", type=int, default=4,
-                        help="envs each worker hosts in the batched vector layout (1 and this are measured)")
+    parser.add_argument("--envs-per-worker", type=int, default=8,
+                        help="envs each worker hosts in the batched vector layout (1 and this are measured); "
+                             "default 8: PPO's default 16 envs on 2 workers")
     parser.add_argument("--test", action="store_true", help="a tiny run (a few steps per measurement)")
     args = parser.parse_args(argv)
     if args.test:
