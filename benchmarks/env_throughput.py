@@ -20,11 +20,11 @@ sampled output ports the read returns the last plant step's torques and costs no
 
 Vector env (grasp, or every sub-task with ``--all``): ``ProcessVectorEnv`` with 1 and 2 workers, alternating, in
 two layouts: one env per worker, and ``--envs-per-worker`` envs per worker (default 8: 8 envs against 16, PPO's
-default ``num_envs`` on 2 workers); each
-runs about ``--vector-steps`` env steps per env slot of zero actions (automatic resets included); steps/s counts
-env steps (envs x vector steps). ``inprocess_steps_per_s`` is a plain env stepped the same way in this process.
-``other_processes_busy_cores`` is how many cores other processes kept busy during each kept measurement (from
-/proc): a 2-worker speedup on 2 cores is only meaningful when it is near 0.
+default ``num_envs`` on 2 workers); each runs about ``--vector-steps`` env steps per env slot of zero actions
+(automatic resets included), alternating ``--repeats`` times, summed; steps/s counts env steps (envs x vector
+steps). ``inprocess_steps_per_s`` is a plain env stepped the same way in this process.
+``other_processes_busy_cores`` is how many cores other processes kept busy meanwhile (from /proc): a 2-worker
+speedup on 2 cores is only meaningful when it is near 0.
 ``sync_bound_speedup`` is what the per-step times allow a synchronous vector env: envs seeded 0 and 1 (the two
 workers' seeds) are stepped in this process, step by step timed, and a vector step is taken to last as long as the
 slower env's step on perfectly parallel cores (episodes differ in cost, so one env often waits for the other).
