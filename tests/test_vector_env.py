@@ -36,6 +36,18 @@ def _serial_rollout(config, seed: int, actions: np.ndarray) -> list[tuple]:
     return rollout
 
 
+def _assert_matches_serial(rollout: list[tuple], config, actions: np.ndarray) -> None:
+    """Each env's column of a vector ``rollout`` [(observations, rewards, terminated, truncated), ...] (None
+    rewards on the reset row) equals what a serial env seeded SEED + index gives for its actions."""
+    for index in range(actions.shape[1]):
+        serial = _serial_rollout(config, SEED + index, actions[:, index])
+        for (observations, rewards, terminated, truncated), (obs, reward, term, trunc, _) in zip(
+                rollout, serial, strict=True):
+            np.testing.assert_array_equal(observations[index], obs)
+            if reward is not None:
+                assert (rewards[index], terminated[index], truncated[index]) == (reward, term, trunc)
+
+
 def _assert_all_dead(vector_env: ProcessVectorEnv) -> None:
     assert vector_env.closed
     assert not any(process.is_alive() for process in vector_env._processes)
@@ -57,14 +69,8 @@ def test_two_workers_reproduce_the_serial_envs():
             assert all(key.startswith("reward/") for info in infos for key in info if "/" in key)
             vector_rollout.append((observations, rewards, terminated, truncated))
         states = vector_env.get_states()
-    for index in range(2):
-        serial = _serial_rollout(config, SEED + index, actions[:, index])
-        for (vector_obs, rewards, terminated, truncated), (obs, reward, term, trunc, _) in zip(
-                vector_rollout, serial, strict=True):
-            np.testing.assert_array_equal(vector_obs[index], obs)
-            if reward is not None:
-                assert rewards[index] == reward and terminated[index] == term and truncated[index] == trunc
-        assert isinstance(states[index], EnvState)
+    _assert_matches_serial(vector_rollout, config, actions)
+    assert all(isinstance(state, EnvState) for state in states)
     assert not np.array_equal(vector_rollout[0][0][0], vector_rollout[0][0][1])  # Different seeds per env.
 
 
@@ -175,13 +181,7 @@ def test_several_envs_per_worker_reproduce_the_serial_envs_and_restart_together(
         rollout = [(vector_env.reset()[0], None, None, None)]
         for action in actions:
             rollout.append(vector_env.step(action)[:4])
-        for index in range(3):
-            serial = _serial_rollout(config, SEED + index, actions[:, index])
-            for (observations, rewards, terminated, truncated), (obs, reward, term, trunc, _) in zip(
-                    rollout, serial, strict=True):
-                np.testing.assert_array_equal(observations[index], obs)
-                if reward is not None:
-                    assert (rewards[index], terminated[index], truncated[index]) == (reward, term, trunc)
+        _assert_matches_serial(rollout, config, actions)
         # Killing the process of envs 0 and 1 loses both episodes; both restart in one new process.
         old_pids = vector_env.pids
         os.kill(old_pids[0], signal.SIGKILL)
