@@ -273,9 +273,7 @@ class SubtaskEnv(gym.Env):
         info = {"nan_action": False, "simulator_error": False}
         try:
             self.simulator.AdvanceTo(self.context.get_time() + self.scenario.control_period)
-            observation = self.observation()  # Waking or freezing objects below moves nothing it shows.
-            self.objects.update(self.context, self.hand_points())
-            self.randomizer.on_step()  # DR hook: re-applies object masses, re-draws every N plant steps
+            observation = self.observation()
         except RuntimeError as error:  # A failed contact solve, NaN state, ...: a truncation.
             info.update(simulator_error=True, error=str(error), success=False)
             return np.zeros(self.observation_space.shape, np.float32), 0.0, False, True, info
@@ -288,5 +286,9 @@ class SubtaskEnv(gym.Env):
         info["success"] = bool(self.task.is_success(self))
         terminated = bool(self.task.is_failure(self))
         truncated = self._steps >= self.config.episode_length
+        # Last, as they move nothing the observation, reward or success test shows, but invalidate Drake's cached
+        # observation (a freeze edits the scene graph's filters, which Search's label render depends on).
+        self.objects.update(self.context, self.hand_points())
+        self.randomizer.on_step()  # DR hook: re-applies object masses, re-draws every N plant steps
         observation = self.randomizer.perturb_observation(observation)  # DR hook: observation noise
         return observation, float(sum(terms.values())), terminated, truncated, info
