@@ -95,7 +95,7 @@ def scale_action_to_limits(action: np.ndarray) -> np.ndarray:
     -1 maps to ALLEGRO_Q_MIN and +1 to ALLEGRO_Q_MAX, linearly: the paper's "absolute targets scaled to the
     joint limits". Actions outside [-1, 1] are clipped first, so targets always lie within the limits.
     """
-    action = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
+    action = np.minimum(np.maximum(np.asarray(action, dtype=float), -1.0), 1.0)  # np.clip, minus its overhead.
     return ALLEGRO_Q_MIN + 0.5 * (action + 1.0) * (ALLEGRO_Q_MAX - ALLEGRO_Q_MIN)
 
 

@@ -142,8 +142,8 @@ class ObservationAssembler(LeafSystem):
         frames = [*frames, poses[self._palm], poses[target.object_body]]
         rows = np.empty((6, 13))
         rows[:, :3] = [X.translation() for X in frames]
-        rows[:, 3:7] = [X.rotation().ToQuaternion().wxyz() for X in frames]
-        rows[:, 3:7] *= np.where(rows[:, 3:4] < 0.0, -1.0, 1.0)  # The hemisphere qw >= 0.
+        quaternions = [X.rotation().ToQuaternion().wxyz() for X in frames]
+        rows[:, 3:7] = [q if q[0] >= 0.0 else -q for q in quaternions]  # The hemisphere qw >= 0.
         V = np.array([velocities[b].get_coeffs() for b in (*self._tip_bodies, self._palm, target.object_body)])
         rows[:, 7:10], rows[:, 10:13] = V[:, 3:], V[:, :3]  # Drake's coefficients are [angular, linear].
         if not self._tips_are_bodies:  # A frame F fixed on body B moves at v_WB + w_WB x p_BF (in the world).

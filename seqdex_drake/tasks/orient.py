@@ -30,7 +30,7 @@ class OrientTask(Task):
         self.start_quaternion = env.object_pose().rotation().ToQuaternion().wxyz()
 
     def reward_terms(self, env, action):
-        rotation = quaternion_angle(env.object_pose().rotation().ToQuaternion().wxyz(), self.start_quaternion)
+        rotation = quaternion_angle(env.raw_observation()[114:118], self.start_quaternion)  # The object's.
         return orient_reward(self.config.reward, rotation, env.fingertip_distance(), action, env.hand_torque())
 
     def is_success(self, env) -> bool:

@@ -34,5 +34,5 @@ class ToolGraspTask(Task):
 
     def is_success(self, env) -> bool:
         lift, angle = self.config.success_threshold
-        turned = quaternion_angle(env.object_pose().rotation().ToQuaternion().wxyz(), self.start_quaternion)
+        turned = quaternion_angle(env.raw_observation()[114:118], self.start_quaternion)  # The tool's quaternion.
         return env.object_position()[2] - self.start_height > lift and turned < angle
