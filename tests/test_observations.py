@@ -8,6 +8,7 @@ from pydrake.systems.framework import BasicVector
 from seqdex_drake.robots.allegro import FINGERTIP_FRAMES, PALM_BODY
 from seqdex_drake.systems.observations import pose_vector
 from seqdex_drake.tasks.registry import make_env
+from seqdex_drake.tasks.rewards import goal_errors, quaternion_angle
 
 
 @pytest.fixture(scope="module")
@@ -71,3 +72,11 @@ def test_hand_points_and_fingertip_distance_agree_with_the_plant(env):
     com = env.object_pose() @ env.object_body().default_com()
     np.testing.assert_allclose(env.object_position(), com, atol=1e-12)
     assert env.fingertip_distance() == pytest.approx(np.linalg.norm(expected[:4] - com, axis=1).sum(), abs=1e-12)
+
+
+def test_goal_errors_read_from_the_observation_match_the_pose(env):
+    pose, goal = pose_vector(env.object_pose()), env.goal
+    position, rotation = goal_errors(env.raw_observation())
+    assert position == pytest.approx(np.linalg.norm(pose[:3] - goal[:3]), abs=1e-12)
+    assert rotation == pytest.approx(quaternion_angle(pose[3:], goal[3:]), abs=1e-9)
+    assert rotation > 1.0  # tool Reorient's goal is the tool flipped: a real angle, not a trivial zero.

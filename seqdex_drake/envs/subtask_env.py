@@ -21,7 +21,12 @@ from seqdex_drake.robots.arm_ik import PalmIK
 from seqdex_drake.scenario import LoadScenario
 from seqdex_drake.scene.objects import SceneObjects
 from seqdex_drake.station import MakeControllerPlant, MakeStation, RefreshSampledOutputs
-from seqdex_drake.systems.observations import ACTION_SIZE, ObservationAssembler, ObservationTarget
+from seqdex_drake.systems.observations import (
+    ACTION_SIZE,
+    ObservationAssembler,
+    ObservationTarget,
+    fingertip_positions,
+)
 from seqdex_drake.tasks.base import Task, TaskConfig
 
 
@@ -142,14 +147,14 @@ class SubtaskEnv(gym.Env):
         ``SceneObjects.hand_points``: the tips from the observation (cached by Drake until the state changes,
         so the step's own observation serves every call), the palm centre from the plant's cached kinematics."""
         points = np.empty((5, 3))
-        points[:4] = self.raw_observation()[46:98].reshape(4, 13)[:, :3]
+        points[:4] = fingertip_positions(self.raw_observation())
         X_WPalm = self.plant.EvalBodyPoseInWorld(self.plant_context, self._palm_body)
         points[4] = X_WPalm.rotation().matrix() @ p_PalmPc_Palm + X_WPalm.translation()
         return points
 
     def fingertip_distance(self) -> float:
         """Sum of the four fingertips' distances to the target object's centre (the paper's Sigma f)."""
-        offsets = self.raw_observation()[46:98].reshape(4, 13)[:, :3] - self.object_position()
+        offsets = fingertip_positions(self.raw_observation()) - self.object_position()
         return float(np.sqrt(np.einsum("ij,ij->i", offsets, offsets)).sum())
 
     def hand_torque(self) -> np.ndarray:

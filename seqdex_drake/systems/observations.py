@@ -49,11 +49,20 @@ class ObservationTarget:
     """Render label of the target object in the label image (Search)."""
 
 
-def cross3(a, b) -> np.ndarray:
-    """The cross product of two 3-vectors; the same arithmetic as ``np.cross``, without its per-call overhead."""
-    a0, a1, a2 = a
-    b0, b1, b2 = b
-    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+#: Parts of an observation that the env and the tasks read back (indices as in the table above).
+FINGERTIPS = slice(46, 98)
+"""The 4 fingertip rows of 13 (pose, linear, angular velocity): ``fingertip_positions`` takes their positions."""
+OBJECT_QUATERNION = slice(114, 118)
+"""The object's orientation [qw, qx, qy, qz], qw >= 0."""
+GOAL_POSITION_ERROR = slice(166, 169)
+"""Goal position - object position (Insert, tool Reorient)."""
+GOAL_ROTATION_ERROR = slice(169, 173)
+"""Goal quaternion * conj(object quaternion) (Insert, tool Reorient)."""
+
+
+def fingertip_positions(observation: np.ndarray) -> np.ndarray:
+    """(4, 3) world positions of the fingertips (index, middle, ring, thumb) in an observation."""
+    return observation[FINGERTIPS].reshape(4, 13)[:, :3]
 
 
 def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -153,8 +162,8 @@ class ObservationAssembler(LeafSystem):
         out[143:159] = self.get_input_port(2).Eval(context)
         if self._goal:
             goal = np.asarray(target.goal, dtype=float)
-            out[159:166], out[166:169] = goal, goal[:3] - out[111:114]
-            out[169:173] = quat_multiply(goal[3:], quat_conjugate(out[114:118]))
+            out[159:166], out[GOAL_POSITION_ERROR] = goal, goal[:3] - out[111:114]
+            out[GOAL_ROTATION_ERROR] = quat_multiply(goal[3:], quat_conjugate(out[OBJECT_QUATERNION]))
         if self._pixels:
             image = self.GetInputPort("label_image").Eval(context)
             out[BASE_SIZE] = np.count_nonzero(image.data == target.label)

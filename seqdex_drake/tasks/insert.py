@@ -7,17 +7,16 @@ stands on the baseplate (frozen: a static support), the block's goal is stud-ali
 formula. Success (release): within 0.02 m and 0.2 rad of the goal, a 180 deg yaw flip counting as the goal.
 """
 
-import math
 
 import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw
 
 from seqdex_drake.modeling.blocks import BLOCK_SPECS, STUD_PITCH
-from seqdex_drake.systems.observations import pose_vector, quat_multiply
+from seqdex_drake.systems.observations import OBJECT_QUATERNION, pose_vector, quat_multiply
 from seqdex_drake.tasks.base import Task, TaskConfig
 from seqdex_drake.tasks.blocks_common import block_name
 from seqdex_drake.tasks.handoff import scripted_block_pickup
-from seqdex_drake.tasks.rewards import RewardWeights, goal_reward, quaternion_angle
+from seqdex_drake.tasks.rewards import RewardWeights, goal_errors, goal_reward, quaternion_angle
 
 #: The 4x4 plates stand stud-aligned on the baseplate (baseplate top at z = 0.618).
 PLATE_XY = np.array([0.25, -0.23])
@@ -45,13 +44,12 @@ def goal_pose(block_type: int, layers: int, cell: tuple[int, int], yaw: float) -
     return pose_vector(X)
 
 
-def goal_errors(env) -> tuple[float, float]:
+def block_goal_errors(env) -> tuple[float, float]:
     """Position (m) and rotation (rad) errors of the block's origin frame to the goal, yaw-flip symmetric."""
-    observation = env.raw_observation()  # Its goal part: goal - position, goal * conj(object quaternion).
-    error = observation[169:173]
-    rotation = 2.0 * math.asin(min(math.sqrt(error[1] ** 2 + error[2] ** 2 + error[3] ** 2), 1.0))
-    flipped = quaternion_angle(observation[114:118], quat_multiply(env.goal[3:], YAW_FLIP))
-    return math.sqrt(float(observation[166:169] @ observation[166:169])), min(rotation, flipped)
+    observation = env.raw_observation()
+    position, rotation = goal_errors(observation)
+    flipped = quaternion_angle(observation[OBJECT_QUATERNION], quat_multiply(env.goal[3:], YAW_FLIP))
+    return position, min(rotation, flipped)
 
 
 class InsertTask(Task):
@@ -74,10 +72,10 @@ class InsertTask(Task):
         scripted_block_pickup(env, name, yaw_jitter=0.1, rng=rng)
 
     def reward_terms(self, env, action):
-        position, rotation = goal_errors(env)
+        position, rotation = block_goal_errors(env)
         return goal_reward(self.config.reward, position, rotation, env.fingertip_distance(), action,
                            env.hand_torque())
 
     def is_success(self, env) -> bool:
-        position, rotation = goal_errors(env)
+        position, rotation = block_goal_errors(env)
         return position < self.config.success_threshold[0] and rotation < self.config.success_threshold[1]

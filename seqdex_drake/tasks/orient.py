@@ -7,6 +7,7 @@ fingertip term and penalties (paper). Success (release): the block's z axis with
 
 import numpy as np
 
+from seqdex_drake.systems.observations import OBJECT_QUATERNION
 from seqdex_drake.tasks.base import Task, TaskConfig
 from seqdex_drake.tasks.blocks_common import place_single_block
 from seqdex_drake.tasks.rewards import RewardWeights, orient_reward, quaternion_angle
@@ -30,7 +31,7 @@ class OrientTask(Task):
         self.start_quaternion = env.object_pose().rotation().ToQuaternion().wxyz()
 
     def reward_terms(self, env, action):
-        rotation = quaternion_angle(env.raw_observation()[114:118], self.start_quaternion)  # The object's.
+        rotation = quaternion_angle(env.raw_observation()[OBJECT_QUATERNION], self.start_quaternion)
         return orient_reward(self.config.reward, rotation, env.fingertip_distance(), action, env.hand_torque())
 
     def is_success(self, env) -> bool:

@@ -16,6 +16,10 @@ import math
 
 import numpy as np
 
+from seqdex_drake.systems.observations import GOAL_POSITION_ERROR, GOAL_ROTATION_ERROR
+
+_IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+
 
 @dataclasses.dataclass
 class RewardWeights:
@@ -60,6 +64,13 @@ def quaternion_angle(q_a: np.ndarray, q_b: np.ndarray) -> float:
     y = a0 * b2 + b0 * a2 + a3 * b1 - a1 * b3
     z = a0 * b3 + b0 * a3 + a1 * b2 - a2 * b1
     return 2.0 * math.asin(min(math.sqrt(x * x + y * y + z * z), 1.0))
+
+
+def goal_errors(observation: np.ndarray) -> tuple[float, float]:
+    """Position (m) and rotation (rad) errors of the object's origin frame to the goal, from the goal part of an
+    observation (Insert, tool Reorient: goal - position, goal * conj(object quaternion))."""
+    position = observation[GOAL_POSITION_ERROR]
+    return math.sqrt(float(position @ position)), quaternion_angle(observation[GOAL_ROTATION_ERROR], _IDENTITY)
 
 
 def search_reward(weights, target_pixels, fingertip_distance, action, hand_torque) -> dict[str, float]:

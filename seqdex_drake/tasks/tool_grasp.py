@@ -6,6 +6,7 @@ centre of mass. Reward: the paper's Grasp formula. Success: lifted at least 0.10
 orientation within 0.3 rad of the start (FACTS.md's 0.3 rad orientation error: a grasp, not a flip).
 """
 
+from seqdex_drake.systems.observations import OBJECT_QUATERNION
 from seqdex_drake.tasks.base import Task, TaskConfig
 from seqdex_drake.tasks.rewards import RewardWeights, grasp_reward, quaternion_angle
 from seqdex_drake.tasks.tools_common import place_tool_on_table
@@ -34,5 +35,5 @@ class ToolGraspTask(Task):
 
     def is_success(self, env) -> bool:
         lift, angle = self.config.success_threshold
-        turned = quaternion_angle(env.raw_observation()[114:118], self.start_quaternion)  # The tool's quaternion.
+        turned = quaternion_angle(env.raw_observation()[OBJECT_QUATERNION], self.start_quaternion)
         return env.object_position()[2] - self.start_height > lift and turned < angle

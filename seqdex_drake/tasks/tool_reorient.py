@@ -10,14 +10,13 @@ goal (173).
 Reward: the paper's In-hand Orientation formula. Success: orientation error below 0.5 rad (FACTS.md).
 """
 
-import math
 
 from pydrake.math import RigidTransform, RotationMatrix
 
 from seqdex_drake.systems.observations import pose_vector
 from seqdex_drake.tasks.base import Task, TaskConfig
 from seqdex_drake.tasks.handoff import synthesized_tool_grasp
-from seqdex_drake.tasks.rewards import RewardWeights, goal_reward
+from seqdex_drake.tasks.rewards import RewardWeights, goal_errors, goal_reward
 from seqdex_drake.tasks.tools_common import tool_name
 
 
@@ -27,15 +26,6 @@ def default_config() -> TaskConfig:
         object_types=[0], reward=RewardWeights(progress=1.0, fingertip=0.0, action=-0.001, torque=-0.003,
                                                alpha0=20.0, alpha1=1.0, e0=0.06),
         success_threshold=[0.5])  # [orientation error (rad)]
-
-
-def goal_errors(env) -> tuple[float, float]:
-    """Position (m) and rotation (rad) errors of the tool's origin frame to the goal, from the observation's goal
-    part (goal - position, goal * conj(object quaternion))."""
-    observation = env.raw_observation()
-    error = observation[169:173]
-    rotation = 2.0 * math.asin(min(math.sqrt(error[1] ** 2 + error[2] ** 2 + error[3] ** 2), 1.0))
-    return math.sqrt(float(observation[166:169] @ observation[166:169])), rotation
 
 
 class ToolReorientTask(Task):
@@ -60,9 +50,9 @@ class ToolReorientTask(Task):
         env.set_target(env.target_object, pose_vector(goal))
 
     def reward_terms(self, env, action):
-        position, rotation = goal_errors(env)
+        position, rotation = goal_errors(env.raw_observation())
         return goal_reward(self.config.reward, position, rotation, env.fingertip_distance(), action,
                            env.hand_torque())
 
     def is_success(self, env) -> bool:
-        return goal_errors(env)[1] < self.config.success_threshold[0]
+        return goal_errors(env.raw_observation())[1] < self.config.success_threshold[0]
