@@ -58,9 +58,8 @@ WARMUP_STEPS = 5
 
 
 def _sources(env) -> list:
-    """The env's target sources (arm and hand desired states, previous action) with their contexts."""
-    return [(source, source.GetMyMutableContextFromRoot(env.context))
-            for source in (env._arm_source, env._hand_source, env._action_source)]
+    """The env's command source (arm and hand desired states, previous action) with its context."""
+    return [(env._command_source, env._command_source.GetMyMutableContextFromRoot(env.context))]
 
 
 def _time_env(env, state, seconds: float, max_steps: int) -> tuple[int, float, list]:

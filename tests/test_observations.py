@@ -52,7 +52,7 @@ def test_fingertip_frames_offset_from_their_bodies(env):
     X_BF = RigidTransform(RollPitchYaw(0.3, -0.2, 0.5), [0.01, -0.02, 0.03])
     saved = assembler._X_BF, assembler._tips_are_bodies
     try:
-        assembler._X_BF, assembler._tips_are_bodies = [X_BF] * 4, False
+        assembler._X_BF, assembler._tips_are_bodies = np.array([X_BF.GetAsMatrix34()] * 4), False
         out = BasicVector(assembler.size)
         type(assembler)._calc(assembler, context, out)
     finally:
@@ -80,3 +80,38 @@ def test_goal_errors_read_from_the_observation_match_the_pose(env):
     assert position == pytest.approx(np.linalg.norm(pose[:3] - goal[:3]), abs=1e-12)
     assert rotation == pytest.approx(quaternion_angle(pose[3:], goal[3:]), abs=1e-9)
     assert rotation > 1.0  # tool Reorient's goal is the tool flipped: a real angle, not a trivial zero.
+
+
+def test_quaternions_match_drakes_conversion():
+    """The batched rotation-matrix-to-quaternion conversion agrees with Drake's, also at the 180-degree turns
+    where w = 0 and each pivot of Shepperd's method is taken."""
+    from pydrake.common.eigen_geometry import Quaternion
+    from pydrake.math import RotationMatrix
+
+    from seqdex_drake.systems.observations import quaternions_wxyz
+
+    rng = np.random.default_rng(3)
+    rotations = [RotationMatrix(Quaternion(q / np.linalg.norm(q))) for q in rng.normal(size=(500, 4))]
+    rotations += [RotationMatrix(), RotationMatrix.MakeXRotation(np.pi), RotationMatrix.MakeYRotation(np.pi),
+                  RotationMatrix.MakeZRotation(np.pi), RotationMatrix.MakeXRotation(-0.5 * np.pi)]
+    expected = np.array([pose_vector(RigidTransform(R, np.zeros(3)))[3:] for R in rotations])
+    q = quaternions_wxyz(np.array([R.matrix() for R in rotations]))
+    assert np.all(q[:, 0] >= 0.0)
+    # At w = 0, q and -q are the same rotation: compare up to that sign there.
+    flip = (np.abs(expected[:, 0]) < 1e-12) & (np.sum(q * expected, axis=1) < 0)
+    q[flip] *= -1.0
+    np.testing.assert_allclose(q, expected, atol=1e-15)
+
+
+def test_the_steps_observation_is_the_ports():
+    """``SubtaskEnv.step`` assembles the observation on the plant's own context; the port computes it on the
+    assembler's. Both must give the same numbers, bit for bit, for every layout (base, goal, pixels)."""
+    for name in ("grasp", "insert", "search"):
+        env = make_env(name)
+        env.reset(seed=1)
+        rng = np.random.default_rng(1)
+        for _ in range(3):
+            observation, *_ = env.step(rng.uniform(-1, 1, 19))
+            port = env.assembler.get_output_port().Eval(env._assembler_context)
+            np.testing.assert_array_equal(observation, port.astype(np.float32))
+            np.testing.assert_array_equal(env._assemble(), port)

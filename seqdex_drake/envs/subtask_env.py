@@ -13,7 +13,7 @@ import gymnasium as gym
 import numpy as np
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import ConstantVectorSource
+from pydrake.systems.primitives import ConstantVectorSource, Demultiplexer
 
 from seqdex_drake.envs.randomization import DomainRandomizer
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, PALM_BODY, p_PalmHc_Palm, p_PalmPc_Palm, scale_action_to_limits
@@ -52,6 +52,10 @@ class EnvState:
     boundary meets a plant step --; restoring it makes the continuation exact (0 for states saved without it)."""
 
 
+COMMAND_SIZE = 14 + 32 + ACTION_SIZE
+"""The env's per-step command source: arm desired state (14), hand desired state (32), previous action."""
+
+
 class SubtaskEnv(gym.Env):
     """One sub-task as a gymnasium environment.
 
@@ -69,19 +73,21 @@ class SubtaskEnv(gym.Env):
         builder = DiagramBuilder()
         station = builder.AddNamedSystem("station", MakeStation(self.scenario, meshcat=meshcat))
         self.plant = station.GetSubsystemByName("plant")
-        self._arm_source = builder.AddNamedSystem("franka.target", ConstantVectorSource(np.zeros(14)))
-        self._hand_source = builder.AddNamedSystem("allegro.target", ConstantVectorSource(np.zeros(32)))
-        self._action_source = builder.AddNamedSystem("previous_action", ConstantVectorSource(np.zeros(ACTION_SIZE)))
-        builder.Connect(self._arm_source.get_output_port(), station.GetInputPort("franka.desired_state"))
-        builder.Connect(self._hand_source.get_output_port(), station.GetInputPort("allegro.desired_state"))
+        # What the env writes each step, in one source (one write per step): the arm's and the hand's desired
+        # states and the previous action, split in the diagram.
+        self._command_source = builder.AddNamedSystem("commands", ConstantVectorSource(np.zeros(COMMAND_SIZE)))
+        split = builder.AddNamedSystem("commands.split", Demultiplexer([14, 32, ACTION_SIZE]))
+        builder.Connect(self._command_source.get_output_port(), split.get_input_port())
+        builder.Connect(split.get_output_port(0), station.GetInputPort("franka.desired_state"))
+        builder.Connect(split.get_output_port(1), station.GetInputPort("allegro.desired_state"))
         assembler = builder.AddNamedSystem("observation", ObservationAssembler(self.plant, task.goal, task.pixels))
-        for name in ("franka.state", "allegro.state", "allegro.net_actuation", "body_poses",
-                     "body_spatial_velocities"):
+        for name in ("plant_state", "allegro.net_actuation"):
             builder.Connect(station.GetOutputPort(name), assembler.GetInputPort(name))
         if task.pixels:
             camera = next(iter(self.scenario.cameras))
             builder.Connect(station.GetOutputPort(f"{camera}.label_image"), assembler.GetInputPort("label_image"))
-        builder.Connect(self._action_source.get_output_port(), assembler.GetInputPort("previous_action"))
+        self._label_port = station.GetOutputPort(f"{camera}.label_image") if task.pixels else None
+        builder.Connect(split.get_output_port(2), assembler.GetInputPort("previous_action"))
         self.diagram = builder.Build()
         self.station, self.assembler = station, assembler
         self.simulator = Simulator(self.diagram)
@@ -90,8 +96,7 @@ class SubtaskEnv(gym.Env):
         self._plant_context = self.plant.GetMyMutableContextFromRoot(self.context)
         self._station_context = station.GetMyContextFromRoot(self.context)
         self._assembler_context = assembler.GetMyMutableContextFromRoot(self.context)
-        self._source_contexts = [source.GetMyMutableContextFromRoot(self.context)
-                                 for source in (self._arm_source, self._hand_source, self._action_source)]
+        self._command_context = self._command_source.GetMyMutableContextFromRoot(self.context)
         self._hand_torque_port = station.GetOutputPort("allegro.net_actuation")
         self.objects = SceneObjects(station, self.scenario)
         self._controller_plant = MakeControllerPlant(self.scenario)
@@ -115,9 +120,11 @@ class SubtaskEnv(gym.Env):
         self._arm_target = np.asarray(self.scenario.robot.arm_home, dtype=float)
         self._arm_velocity_target = np.zeros(7)
         self._scratch = None  # The plant context RefreshSampledOutputs computes into (allocated once).
+        self._step_observation = None  # The step's raw observation while the step reads it (raw_observation).
+        self._observation_target = ObservationTarget()
         self._hand_target = np.array(ALLEGRO_OPEN_Q)
         self._previous_action = np.zeros(ACTION_SIZE)
-        self._arm_desired, self._hand_desired = np.zeros(14), np.zeros(32)  # Written into the sources per step.
+        self._command = np.zeros(COMMAND_SIZE)  # [arm q, arm v, hand q, hand v (0), previous action], per step.
         self.randomizer = DomainRandomizer(self, self.config.randomization)  # DR hook (envs/randomization.py)
 
     # ------------------------------------------------------------------------------------------- state
@@ -139,8 +146,7 @@ class SubtaskEnv(gym.Env):
 
     def object_position(self) -> np.ndarray:
         """World position of the target object's centre of mass."""
-        X_WO = self.object_pose()
-        return X_WO.rotation().matrix() @ self._p_OOcm + X_WO.translation()
+        return self.object_pose().multiply(self._p_OOcm)
 
     def hand_points(self) -> np.ndarray:
         """(5, 3) world positions of the four fingertips (index, middle, ring, thumb) and the palm centre, as
@@ -148,14 +154,14 @@ class SubtaskEnv(gym.Env):
         so the step's own observation serves every call), the palm centre from the plant's cached kinematics."""
         points = np.empty((5, 3))
         points[:4] = fingertip_positions(self.raw_observation())
-        X_WPalm = self.plant.EvalBodyPoseInWorld(self.plant_context, self._palm_body)
-        points[4] = X_WPalm.rotation().matrix() @ p_PalmPc_Palm + X_WPalm.translation()
+        points[4] = self.plant.EvalBodyPoseInWorld(self.plant_context, self._palm_body).multiply(p_PalmPc_Palm)
         return points
 
     def fingertip_distance(self) -> float:
         """Sum of the four fingertips' distances to the target object's centre (the paper's Sigma f)."""
         offsets = fingertip_positions(self.raw_observation()) - self.object_position()
-        return float(np.sqrt(np.einsum("ij,ij->i", offsets, offsets)).sum())
+        offsets *= offsets
+        return float(np.sqrt(offsets.sum(axis=1)).sum())
 
     def hand_torque(self) -> np.ndarray:
         return self._hand_torque_port.Eval(self._station_context)
@@ -185,8 +191,8 @@ class SubtaskEnv(gym.Env):
         if goal is not None:
             self.goal = np.asarray(goal, dtype=float)
         label = int(self.object_body().index())  # MultibodyPlant labels each body's geometry by body index.
-        target = ObservationTarget(object_body=label, goal=self.goal, label=label)
-        self.assembler.set_target(self._assembler_context, target)
+        self._observation_target = ObservationTarget(object_body=label, goal=self.goal, label=label)
+        self.assembler.set_target(self._assembler_context, self._observation_target)
 
     def get_state(self) -> EnvState:
         return EnvState(self.plant.GetPositions(self.plant_context).copy(),
@@ -214,22 +220,31 @@ class SubtaskEnv(gym.Env):
         self._scratch = RefreshSampledOutputs(self.plant, self.plant_context, self._scratch)
 
     def _set_sources(self, arm_q, hand_q, previous_action, arm_v=None) -> None:
-        arm_v = np.zeros(7) if arm_v is None else np.asarray(arm_v, dtype=float)
-        self._arm_desired[:7], self._arm_desired[7:] = arm_q, arm_v  # Desired states [q, v]; the hand's v is 0.
-        self._hand_desired[:16] = hand_q
-        for source, context, value in zip((self._arm_source, self._hand_source, self._action_source),
-                                          self._source_contexts,
-                                          (self._arm_desired, self._hand_desired, previous_action), strict=True):
-            source.get_mutable_source_value(context).SetFromVector(value)
-        self._arm_target = np.array(arm_q, dtype=float)
-        self._arm_velocity_target = arm_v
-        self._previous_action = np.array(previous_action, dtype=float)
+        command = self._command  # Desired states [q, v] (the hand's v is 0), then the previous action.
+        command[:7], command[14:30], command[46:] = arm_q, hand_q, previous_action
+        command[7:14] = 0.0 if arm_v is None else arm_v
+        self._command_source.get_mutable_source_value(self._command_context).SetFromVector(command)
+        self._arm_target = command[:7].copy()
+        self._arm_velocity_target = command[7:14].copy()
+        self._previous_action = command[46:].copy()
 
     def raw_observation(self) -> np.ndarray:
-        """The assembled observation (float64, before any observation noise). Drake caches it until the state
-        changes, so after a step every read of it (tasks' rewards and success tests) is a copy, not a
-        recomputation."""
+        """The assembled observation (float64, before any observation noise).
+
+        Outside a step: the observation port's value (Drake caches it until the state changes). Inside a step,
+        where the tasks' rewards and success tests and the wake check read it: the step's own observation,
+        assembled once (read-only)."""
+        if self._step_observation is not None:
+            return self._step_observation
         return self.assembler.get_output_port().Eval(self._assembler_context)
+
+    def _assemble(self) -> np.ndarray:
+        """The observation port's value, computed on the plant's own context from the values the port's inputs
+        carry (the same numbers; without copying the state into the assembler's context and computing the
+        kinematics there too)."""
+        image = None if self._label_port is None else self._label_port.Eval(self._station_context)
+        return self.assembler.assemble(self._plant_context, self._observation_target, self._previous_action,
+                                       self.hand_torque(), image)
 
     def observation(self) -> np.ndarray:
         return self.raw_observation().astype(np.float32)
@@ -278,22 +293,28 @@ class SubtaskEnv(gym.Env):
         info = {"nan_action": False, "simulator_error": False}
         try:
             self.simulator.AdvanceTo(self.context.get_time() + self.scenario.control_period)
-            observation = self.observation()
+            raw = self._assemble()
         except RuntimeError as error:  # A failed contact solve, NaN state, ...: a truncation.
             info.update(simulator_error=True, error=str(error), success=False)
             return np.zeros(self.observation_space.shape, np.float32), 0.0, False, True, info
+        observation = raw.astype(np.float32)
         if not np.isfinite(observation).all():
             info.update(simulator_error=True, error="non-finite observation", success=False)
             return np.nan_to_num(observation, nan=0.0, posinf=0.0, neginf=0.0), 0.0, False, True, info
         self._steps += 1
-        terms = self.task.reward_terms(self, action)
-        info.update({f"reward/{k}": v for k, v in terms.items()})
-        info["success"] = bool(self.task.is_success(self))
-        terminated = bool(self.task.is_failure(self))
+        raw.flags.writeable = False
+        self._step_observation = raw  # What raw_observation() returns until the end of the step.
+        try:
+            terms = self.task.reward_terms(self, action)
+            info.update({f"reward/{k}": v for k, v in terms.items()})
+            info["success"] = bool(self.task.is_success(self))
+            terminated = bool(self.task.is_failure(self))
+            # Last, as it moves nothing the observation, reward or success test shows (a freeze edits collision
+            # filters and masses only).
+            self.objects.update(self.context, self.hand_points())
+        finally:
+            self._step_observation = None
         truncated = self._steps >= self.config.episode_length
-        # Last, as they move nothing the observation, reward or success test shows, but invalidate Drake's cached
-        # observation (a freeze edits the scene graph's filters, which Search's label render depends on).
-        self.objects.update(self.context, self.hand_points())
         self.randomizer.on_step()  # DR hook: re-applies object masses, re-draws every N plant steps
         observation = self.randomizer.perturb_observation(observation)  # DR hook: observation noise
         return observation, float(sum(terms.values())), terminated, truncated, info

@@ -52,6 +52,9 @@ class SceneObjects:
                                  dtype=int).reshape(-1, 7)
         self._v_translational_index = np.array([b.floating_velocities_start_in_v() + 3 + np.arange(3)
                                                 for b in self.bodies], dtype=int).reshape(-1, 3)
+        # The same positions and velocities in the plant state [q, v] (the wake check reads both at once).
+        self._x_position_index = self._q_index[:, 4:]
+        self._x_velocity_index = self.plant.num_positions() + self._v_translational_index
         self._geometries = [self.plant.GetCollisionGeometriesForBody(b) for b in self.bodies]
         self._static = [g for body in self.plant.GetBodiesWeldedTo(self.plant.world_body())
                         for g in self.plant.GetCollisionGeometriesForBody(body)]
@@ -64,6 +67,7 @@ class SceneObjects:
             self.plant.GetBodyIndices(self.plant.GetModelInstanceByName("franka")))
         self._object_of_body = {body.index(): i for i, body in enumerate(self.bodies)}
         self._palm_frame = self.plant.GetBodyByName(PALM_BODY, hand).body_frame()
+        self._last_root: tuple = (None, None, None)  # (root, plant context, freezer context) of the last update.
 
     # ----------------------------------------------------------------------------------------- access
     def index(self, name: str) -> int:
@@ -219,18 +223,24 @@ class SceneObjects:
         :meth:`hand_points` of the current state, where the caller has them already.
         """
         config = self.scenario.freeze
-        frozen = self.frozen_mask(root)
-        plant_context = self.plant.GetMyContextFromRoot(root)
-        p_WO = self.plant.GetPositions(plant_context)[self._q_index[:, 4:]]
-        v_WO = self.plant.GetVelocities(plant_context)[self._v_translational_index]
-        speed = np.sqrt(np.einsum("ij,ij->i", v_WO, v_WO))
+        if self._last_root[0] is not root:  # The subsystem contexts of the root, looked up once per root.
+            self._last_root = (root, self.plant.GetMyContextFromRoot(root), self.freezer.GetMyContextFromRoot(root))
+        _, plant_context, freezer_context = self._last_root
+        frozen = self.freezer.frozen_set(freezer_context).frozen  # Read only (set_frozen replaces the set).
+        x = self.plant.GetPositionsAndVelocities(plant_context)
+        p_WO, v_WO = x[self._x_position_index], x[self._x_velocity_index]
+        v_WO *= v_WO
+        speed = np.sqrt(v_WO.sum(axis=1))
         hand = self.hand_points(root) if hand is None else hand
         # Squared distances of every object to every hand point, (n, 5): few numpy calls, as this runs per step.
-        offsets = p_WO[:, None, :] - hand[None, :, :]
-        to_hand = np.einsum("ijk,ijk->ij", offsets, offsets).min(axis=1)
+        offsets = p_WO[:, None, :] - hand
+        offsets *= offsets
+        to_hand = offsets.sum(axis=2).min(axis=1)
         near_hand = to_hand < config.wake_radius**2
+        awake = ~frozen
         # Fast now or at the last check: an impact is over (slow again) by the end of the step it happens in.
-        moving = (~frozen) & (np.maximum(speed, self._last_speed) > config.wake_speed)
+        moving = np.maximum(speed, self._last_speed) > config.wake_speed
+        moving &= awake
         self._last_speed = speed
         wake = frozen & near_hand
         # Read the contacts (a Python loop over them) only when some frozen object is within reach (the hand
@@ -239,15 +249,24 @@ class SceneObjects:
         if moving.any():
             offsets = p_WO[:, None, :] - p_WO[None, moving, :]
             reach |= np.einsum("ijk,ijk->ij", offsets, offsets).min(axis=1) < 0.2**2
-        if (frozen & reach & ~wake).any():
+        reach &= frozen
+        if (reach > wake).any():  # Frozen, within reach and not woken yet.
             wake |= frozen & self._touched(plant_context, frozen, moving)
-        still = (~frozen) & (speed < config.sleep_speed) & ~near_hand
-        self._still_ticks = np.where(still, self._still_ticks + 1, 0)
-        sleep = self._still_ticks >= config.sleep_ticks if config.enabled and config.sleep_ticks > 0 else still & False
-        if wake.any() or sleep.any():
-            ticks = self._still_ticks.copy()
-            self.set_frozen(root, (frozen & ~wake) | sleep)
-            self._still_ticks = np.where(sleep, 0, ticks)
+        still = speed < config.sleep_speed
+        still &= awake
+        still &= ~near_hand
+        self._still_ticks += 1
+        self._still_ticks *= still  # Reset to 0 where not still.
+        if config.enabled and config.sleep_ticks > 0:
+            sleep = self._still_ticks >= config.sleep_ticks
+            changed = (wake | sleep).any()
+        else:
+            sleep, changed = None, wake.any()
+        if not changed:
+            return []
+        ticks = self._still_ticks.copy()
+        self.set_frozen(root, frozen & ~wake if sleep is None else (frozen & ~wake) | sleep)
+        self._still_ticks = ticks if sleep is None else np.where(sleep, 0, ticks)
         return [self.names[i] for i in np.flatnonzero(wake)] if wake.any() else []
 
     def _touched(self, plant_context: Context, frozen: np.ndarray, moving: np.ndarray) -> np.ndarray:

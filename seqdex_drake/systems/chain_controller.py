@@ -9,7 +9,7 @@ it is farther than 5 cm), a :class:`~seqdex_drake.systems.chain_parts.StageRoute
 the wrist IK (:class:`~seqdex_drake.systems.chain_parts.WristTargetIntegrator`). Ports, station-side names:
 
 Inputs
-    ``franka.state``, ``allegro.state``, ``allegro.net_actuation``, ``body_poses``, ``body_spatial_velocities``,
+    ``plant_state``, ``allegro.net_actuation``, ``franka.state``, ``body_poses``,
     ``label_image`` (only with a Search stage: the station's ``<camera>.label_image``), ``stage_success``
     (optional, 1: the executing stage succeeded; leave unconnected to use the step budgets only).
 Outputs
@@ -44,8 +44,9 @@ from seqdex_drake.systems.osc import OperationalSpaceController, OscParams
 from seqdex_drake.systems.policy import PAPER_HIDDEN_SIZES, PolicyParams, PolicySystem
 from seqdex_drake.systems.switcher import FeasibilitySwitcher, SwitcherParams
 
-STATION_INPUTS = ("franka.state", "allegro.state", "allegro.net_actuation", "body_poses", "body_spatial_velocities")
+STATION_INPUTS = ("plant_state", "allegro.net_actuation", "franka.state", "body_poses")
 """Station outputs every chain controller reads (plus ``<camera>.label_image`` with a Search stage)."""
+_ASSEMBLER_INPUTS = ("plant_state", "allegro.net_actuation")
 
 
 @dataclasses.dataclass
@@ -245,9 +246,9 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
     wrist = builder.AddNamedSystem("wrist_ik", WristTargetIntegrator(ik, ik.palm_pose(home).rotation(), period))
 
     # Station-side inputs, each exported once and fanned out.
-    consumers = {name: [a.GetInputPort(name) for a in assemblers.values()] for name in STATION_INPUTS}
-    consumers["franka.state"] += [osc.GetInputPort("franka.state"), wrist.GetInputPort("franka.state")]
-    consumers["body_poses"].append(approach.GetInputPort("body_poses"))
+    consumers = {name: [a.GetInputPort(name) for a in assemblers.values()] for name in _ASSEMBLER_INPUTS}
+    consumers["franka.state"] = [osc.GetInputPort("franka.state"), wrist.GetInputPort("franka.state")]
+    consumers["body_poses"] = [approach.GetInputPort("body_poses")]
     if any(pixels for _, pixels in layouts):
         consumers["label_image"] = [a.GetInputPort("label_image") for (_, pixels), a in assemblers.items() if pixels]
     consumers["stage_success"] = [switcher.GetInputPort("stage_success")]

@@ -25,8 +25,8 @@ import dataclasses
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.multibody.math import SpatialVelocity
 from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import BasicVector, LeafSystem
 from pydrake.systems.sensors import ImageLabel16I
 
@@ -78,6 +78,40 @@ def quat_conjugate(q: np.ndarray) -> np.ndarray:
     return np.array([q[0], -q[1], -q[2], -q[3]], dtype=float)
 
 
+def _quaternion_map() -> tuple[np.ndarray, np.ndarray]:
+    """(W, c) with ``R.ravel() @ W + c == (4 q q^T).ravel()`` for the unit quaternion q = [w, x, y, z] of any
+    rotation matrix R: the diagonal is 1 +- the diagonal entries of R (4 w^2 = 1 + tr R, 4 x^2 = 1 + r00 - r11 -
+    r22, ...), the rest sums and differences of off-diagonal pairs (4 w x = r21 - r12, 4 x y = r01 + r10, ...)."""
+    W, c = np.zeros((9, 16)), np.zeros(16)
+    signs = {0: (1, 1, 1), 1: (1, -1, -1), 2: (-1, 1, -1), 3: (-1, -1, 1)}  # Of r00, r11, r22 in 4 q_a^2 - 1.
+    for a, sign in signs.items():
+        c[5 * a] = 1.0
+        W[[0, 4, 8], 5 * a] = sign
+    pairs = {(0, 1): ((2, 1), (1, 2), -1), (0, 2): ((0, 2), (2, 0), -1), (0, 3): ((1, 0), (0, 1), -1),
+             (1, 2): ((0, 1), (1, 0), 1), (1, 3): ((0, 2), (2, 0), 1), (2, 3): ((1, 2), (2, 1), 1)}
+    for (a, b), ((i, j), (k, m), sign) in pairs.items():
+        for entry in (4 * a + b, 4 * b + a):
+            W[3 * i + j, entry], W[3 * k + m, entry] = 1.0, sign
+    return W, c
+
+
+_QUATERNION_W, _QUATERNION_C = _quaternion_map()
+
+
+def quaternions_wxyz(R: np.ndarray) -> np.ndarray:
+    """(n, 4) unit quaternions [w, x, y, z], w >= 0, of (n, 3, 3) rotation matrices, in a few array operations
+    (per-matrix conversions through Drake cost a few Python calls each, at every env step). Each row of
+    4 q q^T is q scaled by 4 q_a; the row of the largest diagonal entry divides best (Shepperd's method)."""
+    n = len(R)
+    K = (R.reshape(n, 9) @ _QUATERNION_W + _QUATERNION_C).reshape(n, 4, 4)
+    diagonal = K.reshape(n, 16)[:, ::5]
+    rows = np.arange(n)
+    pivot = diagonal.argmax(axis=1)
+    q = K[rows, pivot] / (2.0 * np.sqrt(diagonal[rows, pivot]))[:, None]
+    q[q[:, 0] < 0.0] *= -1.0
+    return q
+
+
 def pose_vector(X) -> np.ndarray:
     """[x, y, z, qw, qx, qy, qz] of a RigidTransform, with qw >= 0."""
     out = np.empty(7)
@@ -95,32 +129,45 @@ def _write_pose(out: np.ndarray, start: int, X) -> None:
 class ObservationAssembler(LeafSystem):
     """Assembles the paper's observation vector from the station's output ports.
 
-    Input ports (connect to the station ports of the same names): ``franka.state``, ``allegro.state``,
-    ``allegro.net_actuation``, ``body_poses``, ``body_spatial_velocities``; with ``pixels=True`` also
-    ``label_image``. Input ``previous_action`` (19). Output ``observation``.
+    Input ports (connect to the station ports of the same names): ``plant_state`` (the whole plant's
+    [q, v]) and ``allegro.net_actuation``; with ``pixels=True`` also ``label_image``. Input
+    ``previous_action`` (19). Output ``observation``.
+
+    The fingertip, palm and object kinematics are computed from ``plant_state`` on a plant context of the
+    system's own (a scratch workspace, overwritten at every evaluation, as in the manipulation course's
+    controllers): six bodies' poses and velocities, where the plant's ``body_poses`` and
+    ``body_spatial_velocities`` ports would convert all of them to Python objects at every control step. The
+    kinematics use the plant's default parameters, which domain randomization does not change for them (it
+    scales masses, inertias, friction, joint limits, stiffness and damping, not frame offsets).
 
     Args:
-        plant: the station's plant (for body and frame lookups; not kept in the loop).
+        plant: the station's plant, or one built from the same scenario (kept for the kinematics).
         goal: append the 14 goal dimensions (Insert, tool Reorient).
         pixels: append the target-pixel count from a label image (Search).
     """
 
     def __init__(self, plant: MultibodyPlant, goal: bool = False, pixels: bool = False):
         super().__init__()
-        hand = plant.GetModelInstanceByName("allegro")
+        hand, arm = plant.GetModelInstanceByName("allegro"), plant.GetModelInstanceByName("franka")
+        self._plant = plant
+        self._scratch = plant.CreateDefaultContext()
+        self._nq = plant.num_positions()
+        # Where the canonical joint order (Franka 1-7, Allegro 0-15) sits in the plant state [q, v].
+        q_index, v_index = np.arange(self._nq, dtype=float), np.arange(plant.num_velocities(), dtype=float)
+        self._joint_index = np.concatenate(
+            [plant.GetPositionsFromArray(arm, q_index), plant.GetPositionsFromArray(hand, q_index),
+             self._nq + plant.GetVelocitiesFromArray(arm, v_index),
+             self._nq + plant.GetVelocitiesFromArray(hand, v_index)]).astype(int)
         self._tips = [plant.GetFrameByName(name, hand) for name in FINGERTIP_FRAMES]
-        self._tip_bodies = [int(f.body().index()) for f in self._tips]
-        self._X_BF = [f.GetFixedPoseInBodyFrame() for f in self._tips]
-        self._tips_are_bodies = all(X.IsExactlyIdentity() for X in self._X_BF)  # Our Allegro: tip links.
-        self._palm = int(plant.GetBodyByName(PALM_BODY, hand).index())
+        self._tip_bodies = [f.body() for f in self._tips]
+        self._X_BF = np.array([f.GetFixedPoseInBodyFrame().GetAsMatrix34() for f in self._tips])  # (4, 3, 4)
+        self._tips_are_bodies = all(f.GetFixedPoseInBodyFrame().IsExactlyIdentity() for f in self._tips)
+        self._palm = plant.GetBodyByName(PALM_BODY, hand)
+        self._bodies = {}  # Body index -> body, of the target objects seen (set_target).
         self._goal, self._pixels = goal, pixels
         self.size = BASE_SIZE + (GOAL_SIZE if goal else 0) + (1 if pixels else 0)
-        self.DeclareVectorInputPort("franka.state", 14)
-        self.DeclareVectorInputPort("allegro.state", 32)
+        self.DeclareVectorInputPort("plant_state", self._nq + plant.num_velocities())
         self.DeclareVectorInputPort("allegro.net_actuation", 16)
-        self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([plant.world_body().body_frame()
-                                                                       .CalcPoseInWorld(plant.CreateDefaultContext())]))
-        self.DeclareAbstractInputPort("body_spatial_velocities", AbstractValue.Make([SpatialVelocity.Zero()]))
         self.DeclareVectorInputPort("previous_action", ACTION_SIZE)
         if pixels:
             self.DeclareAbstractInputPort("label_image", AbstractValue.Make(ImageLabel16I()))
@@ -129,6 +176,11 @@ class ObservationAssembler(LeafSystem):
 
     def set_target(self, context, target: ObservationTarget) -> None:
         """Sets the episode's target object, goal and label in this system's context."""
+        if target.object_body >= 0 and target.object_body not in self._bodies:
+            if not 0 <= target.object_body < self._plant.num_bodies():
+                raise ValueError(f"ObservationAssembler: no body with index {target.object_body} in the plant "
+                                 f"({self._plant.num_bodies()} bodies)")
+            self._bodies[target.object_body] = self._plant.get_body(BodyIndex(target.object_body))
         context.get_mutable_abstract_parameter(self._target_index).set_value(target)
 
     def target(self, context) -> ObservationTarget:
@@ -136,35 +188,45 @@ class ObservationAssembler(LeafSystem):
 
     def _calc(self, context, output: BasicVector) -> None:
         target = self.target(context)
-        if target.object_body < 0:
+        self._plant.SetPositionsAndVelocities(self._scratch, self.get_input_port(0).Eval(context))
+        image = self.get_input_port(3).Eval(context) if self._pixels else None
+        output.SetFromVector(self.assemble(self._scratch, target, self.get_input_port(2).Eval(context),
+                                           self.get_input_port(1).Eval(context), image))
+
+    def assemble(self, plant_context, target: ObservationTarget, previous_action: np.ndarray,
+                 net_actuation: np.ndarray, label_image=None) -> np.ndarray:
+        """The observation of the state in ``plant_context``, a context of the plant this system was built with.
+
+        The output port computes it on the system's own plant context, from its input ports. A caller that
+        owns the plant's context and the other inputs (``SubtaskEnv``) gets the same vector directly, without
+        copying the state or computing the kinematics twice (the plant's own context keeps them for its next
+        step)."""
+        if target.object_body not in self._bodies:
             raise RuntimeError("ObservationAssembler: no target object set; call set_target() at reset")
-        arm = self.get_input_port(0).Eval(context)
-        hand = self.get_input_port(1).Eval(context)
-        poses = self.get_input_port(3).Eval(context)
-        velocities = self.get_input_port(4).Eval(context)
+        plant = self._plant
         out = np.empty(self.size)
-        out[0:7], out[7:23], out[23:30], out[30:46] = arm[:7], hand[:16], arm[7:], hand[16:]
+        out[0:46] = plant.GetPositionsAndVelocities(plant_context)[self._joint_index]
         # The 4 fingertip frames, the palm and the object, one 13-row each: pose (7), linear, angular velocity.
-        X_WB = [poses[b] for b in self._tip_bodies]
-        frames = X_WB if self._tips_are_bodies else [X.multiply(X_BF) for X, X_BF in zip(X_WB, self._X_BF,
-                                                                                          strict=True)]
-        frames = [*frames, poses[self._palm], poses[target.object_body]]
+        bodies = (*self._tip_bodies, self._palm, self._bodies[target.object_body])
+        X = np.array([plant.EvalBodyPoseInWorld(plant_context, body).GetAsMatrix34() for body in bodies])
+        V = np.array([plant.EvalBodySpatialVelocityInWorld(plant_context, body).get_coeffs() for body in bodies])
         rows = np.empty((6, 13))
-        rows[:, :3] = [X.translation() for X in frames]
-        quaternions = [X.rotation().ToQuaternion().wxyz() for X in frames]
-        rows[:, 3:7] = [q if q[0] >= 0.0 else -q for q in quaternions]  # The hemisphere qw >= 0.
-        V = np.array([velocities[b].get_coeffs() for b in (*self._tip_bodies, self._palm, target.object_body)])
         rows[:, 7:10], rows[:, 10:13] = V[:, 3:], V[:, :3]  # Drake's coefficients are [angular, linear].
-        if not self._tips_are_bodies:  # A frame F fixed on body B moves at v_WB + w_WB x p_BF (in the world).
-            rows[:4, 7:10] += np.cross(V[:4, :3], rows[:4, :3] - [X.translation() for X in X_WB])
+        if not self._tips_are_bodies:  # X_WF = X_WB X_BF; F moves at v_WB + w_WB x p_BF (in the world).
+            R_WB, X_BF = X[:4, :, :3], self._X_BF
+            p_BF_W = np.einsum("nij,nj->ni", R_WB, X_BF[:, :, 3])
+            rows[:4, 7:10] += np.cross(V[:4, :3], p_BF_W)
+            X[:4, :, 3] += p_BF_W
+            X[:4, :, :3] = R_WB @ X_BF[:, :, :3]
+        rows[:, :3] = X[:, :, 3]
+        rows[:, 3:7] = quaternions_wxyz(X[:, :, :3])  # The hemisphere qw >= 0.
         out[46:124] = rows.ravel()
-        out[124:143] = self.get_input_port(5).Eval(context)
-        out[143:159] = self.get_input_port(2).Eval(context)
+        out[124:143] = previous_action
+        out[143:159] = net_actuation
         if self._goal:
             goal = np.asarray(target.goal, dtype=float)
             out[159:166], out[GOAL_POSITION_ERROR] = goal, goal[:3] - out[111:114]
             out[GOAL_ROTATION_ERROR] = quat_multiply(goal[3:], quat_conjugate(out[OBJECT_QUATERNION]))
         if self._pixels:
-            image = self.GetInputPort("label_image").Eval(context)
-            out[BASE_SIZE] = np.count_nonzero(image.data == target.label)
-        output.SetFromVector(out)
+            out[BASE_SIZE] = np.count_nonzero(label_image.data == target.label)
+        return out

@@ -87,7 +87,7 @@ def orient_reward(weights, rotation_from_start, fingertip_distance, action, hand
 
 def grasp_reward(weights, fingertip_distance, action, hand_torque) -> dict[str, float]:
     """Grasp (blocks and tools): lambda1 exp[|alpha0| min(e0 - Sigma f, 0)] + penalties (see module note)."""
-    closeness = np.exp(abs(weights.alpha0) * min(weights.e0 - fingertip_distance, 0.0))
+    closeness = math.exp(abs(weights.alpha0) * min(weights.e0 - fingertip_distance, 0.0))
     return {"closeness": weights.progress * float(closeness), **penalties(weights, action, hand_torque)}
 
 
@@ -96,6 +96,6 @@ def goal_reward(weights, position_error, rotation_error, fingertip_distance, act
 
     ``rotation_error`` is the paper's 2 asin(clamp(||d_a||, 0, 1)), see :func:`quaternion_angle`.
     """
-    closeness = np.exp(-(weights.alpha0 * position_error + weights.alpha1 * rotation_error))
+    closeness = math.exp(-(weights.alpha0 * position_error + weights.alpha1 * rotation_error))
     return {"goal": weights.progress * float(closeness), "fingertip": fingertip_term(weights, fingertip_distance),
             **penalties(weights, action, hand_torque)}
