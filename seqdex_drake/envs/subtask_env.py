@@ -8,6 +8,7 @@ with the palm orientation held (as the release does). Observation: the paper's t
 """
 
 import dataclasses
+import math
 
 import gymnasium as gym
 import numpy as np
@@ -16,16 +17,21 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, Demultiplexer
 
 from seqdex_drake.envs.randomization import DomainRandomizer
-from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, PALM_BODY, p_PalmHc_Palm, p_PalmPc_Palm, scale_action_to_limits
+from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, p_PalmHc_Palm, p_PalmPc_Palm, scale_action_to_limits
 from seqdex_drake.robots.arm_ik import PalmIK
 from seqdex_drake.scenario import LoadScenario
 from seqdex_drake.scene.objects import SceneObjects
 from seqdex_drake.station import MakeControllerPlant, MakeStation, RefreshSampledOutputs
 from seqdex_drake.systems.observations import (
     ACTION_SIZE,
+    FINGERTIPS,
+    OBJECT_POSE,
+    PALM_POSE,
     ObservationAssembler,
     ObservationTarget,
     fingertip_positions,
+    floats,
+    point_in_world,
 )
 from seqdex_drake.tasks.base import Task, TaskConfig
 
@@ -114,7 +120,6 @@ class SubtaskEnv(gym.Env):
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, (assembler.size,), np.float32)
         self.target_object = ""
         self._object_body, self._p_OOcm = None, np.zeros(3)  # Of the target object (set_target).
-        self._palm_body = self.plant.GetBodyByName(PALM_BODY, self.hand)
         self.goal = np.array([0, 0, 0, 1.0, 0, 0, 0])
         self._steps = 0
         self._arm_target = np.asarray(self.scenario.robot.arm_home, dtype=float)
@@ -145,23 +150,28 @@ class SubtaskEnv(gym.Env):
         return self.plant.EvalBodyPoseInWorld(self.plant_context, self._object_body)
 
     def object_position(self) -> np.ndarray:
-        """World position of the target object's centre of mass."""
+        """World position of the target object's centre of mass (within a step, from the step's observation)."""
+        if self._step_observation is not None:
+            return point_in_world(self._step_observation[OBJECT_POSE], self._p_OOcm)
         return self.object_pose().multiply(self._p_OOcm)
 
     def hand_points(self) -> np.ndarray:
         """(5, 3) world positions of the four fingertips (index, middle, ring, thumb) and the palm centre, as
-        ``SceneObjects.hand_points``: the tips from the observation (cached by Drake until the state changes,
-        so the step's own observation serves every call), the palm centre from the plant's cached kinematics."""
+        ``SceneObjects.hand_points``, from the observation (within a step, the step's own)."""
+        observation = self.raw_observation()
         points = np.empty((5, 3))
-        points[:4] = fingertip_positions(self.raw_observation())
-        points[4] = self.plant.EvalBodyPoseInWorld(self.plant_context, self._palm_body).multiply(p_PalmPc_Palm)
+        points[:4] = fingertip_positions(observation)
+        points[4] = point_in_world(observation[PALM_POSE], p_PalmPc_Palm)
         return points
 
     def fingertip_distance(self) -> float:
         """Sum of the four fingertips' distances to the target object's centre (the paper's Sigma f)."""
-        offsets = fingertip_positions(self.raw_observation()) - self.object_position()
-        offsets *= offsets
-        return float(np.sqrt(offsets.sum(axis=1)).sum())
+        cx, cy, cz = floats(self.object_position())
+        tips, total = self.raw_observation()[FINGERTIPS].tolist(), 0.0  # Rows of 13; float arithmetic (4 x 3).
+        for k in range(0, 52, 13):
+            dx, dy, dz = tips[k] - cx, tips[k + 1] - cy, tips[k + 2] - cz
+            total += math.sqrt(dx * dx + dy * dy + dz * dz)
+        return total
 
     def hand_torque(self) -> np.ndarray:
         return self._hand_torque_port.Eval(self._station_context)

@@ -52,6 +52,10 @@ class ObservationTarget:
 #: Parts of an observation that the env and the tasks read back (indices as in the table above).
 FINGERTIPS = slice(46, 98)
 """The 4 fingertip rows of 13 (pose, linear, angular velocity): ``fingertip_positions`` takes their positions."""
+PALM_POSE = slice(98, 105)
+"""The palm (hand base) pose [x, y, z, qw, qx, qy, qz]."""
+OBJECT_POSE = slice(111, 118)
+"""The object's pose [x, y, z, qw, qx, qy, qz]."""
 OBJECT_QUATERNION = slice(114, 118)
 """The object's orientation [qw, qx, qy, qz], qw >= 0."""
 GOAL_POSITION_ERROR = slice(166, 169)
@@ -65,11 +69,26 @@ def fingertip_positions(observation: np.ndarray) -> np.ndarray:
     return observation[FINGERTIPS].reshape(4, 13)[:, :3]
 
 
+def floats(v) -> list[float]:
+    """The entries of a short vector (array, list or tuple) as Python floats, for plain float arithmetic:
+    numpy's per-call overhead would be most of the cost of three- and four-element maths, run every env step."""
+    return v.tolist() if isinstance(v, np.ndarray) else [float(x) for x in v]
+
+
+def point_in_world(pose: np.ndarray, p_BQ: np.ndarray) -> np.ndarray:
+    """p_WQ of a point Q fixed in a body B, from B's pose [x, y, z, qw, qx, qy, qz] (e.g. ``observation[PALM_POSE]``):
+    p_WB + R(q) p_BQ, with R(q) v = v + 2 w (u x v) + 2 u x (u x v) for q = [w, u], in float arithmetic."""
+    x, y, z, w, ux, uy, uz = floats(pose)
+    vx, vy, vz = floats(p_BQ)
+    tx, ty, tz = 2.0 * (uy * vz - uz * vy), 2.0 * (uz * vx - ux * vz), 2.0 * (ux * vy - uy * vx)  # 2 u x v
+    return np.array([x + vx + w * tx + uy * tz - uz * ty, y + vy + w * ty + uz * tx - ux * tz,
+                     z + vz + w * tz + ux * ty - uy * tx])
+
+
 def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of quaternions [w, x, y, z] (float arithmetic: numpy's per-call overhead would be most
-    of the cost of four-element maths, run every env step)."""
-    a0, a1, a2, a3 = (float(x) for x in a)
-    b0, b1, b2, b3 = (float(x) for x in b)
+    """Hamilton product of quaternions [w, x, y, z] (in float arithmetic, see :func:`floats`)."""
+    a0, a1, a2, a3 = floats(a)
+    b0, b1, b2, b3 = floats(b)
     return np.array([a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3, a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
                      a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1, a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0])
 
