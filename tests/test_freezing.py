@@ -141,3 +141,25 @@ def test_the_linearized_pin_force_matches_the_exact_one_near_the_pin():
         exact = _exact_pin_force(q, v, q_pin, mass, com, inertia, gravity, PIN_OMEGA)
         linear = A[0] @ np.r_[q, v] + b[0]
         assert np.linalg.norm(linear - exact) <= 1e-4 * np.linalg.norm(exact - at_pin)
+
+
+def test_a_resting_block_away_from_the_hand_freezes_again():
+    """With sleeping enabled, an awake block that rests ``sleep_ticks`` steps away from the hand is frozen
+    where it lies (and its count restarts); one dropped just under the palm, still falling, is not."""
+    harness = MakeStationHarness(LoadScenario("grasp", scenario_text="{freeze: {enabled: true, sleep_ticks: 3}}"))
+    objects = harness.objects
+    objects.set_pose(harness.context, "block_4", RigidTransform([0.25, 0.19, 0.6005]))  # Resting in the box.
+    palm = objects.hand_points(harness.context)[-1]
+    objects.set_pose(harness.context, "block_5", RigidTransform(palm + [0, 0, -0.05]))  # Falls from the hand.
+    index, near = objects.index("block_4"), objects.index("block_5")
+    for _ in range(20):
+        harness.step(1)
+        if objects.frozen_mask(harness.context)[index]:
+            break
+    frozen = objects.frozen_mask(harness.context)
+    assert frozen[index], "a resting block did not freeze"
+    assert not frozen[near], "a falling block froze"
+    assert objects.get_state(harness.context)["still_ticks"][index] == 0
+    before = objects.positions(harness.context)[index].copy()
+    harness.step(10)
+    assert np.abs(objects.positions(harness.context)[index, 4:] - before[4:]).max() < 1e-4

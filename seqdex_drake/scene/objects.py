@@ -236,38 +236,52 @@ class SceneObjects:
         offsets = p_WO[:, None, :] - hand
         offsets *= offsets
         to_hand = offsets.sum(axis=2).min(axis=1)
-        near_hand = to_hand < config.wake_radius**2
-        awake = ~frozen
-        # Fast now or at the last check: an impact is over (slow again) by the end of the step it happens in.
-        moving = np.maximum(speed, self._last_speed) > config.wake_speed
-        moving &= awake
+        # The decisions, object by object in plain Python: a handful of objects in most scenes, where numpy's
+        # per-call overhead would cost more than the logic (the 72-block pile: ~30 us).
+        wake_radius2, ticks = config.wake_radius**2, self._still_ticks.tolist()
+        sleep_ticks = config.sleep_ticks if config.enabled else 0
+        wake, sleep, moving, idle, reach = [], [], [], [], False
+        for i, (is_frozen, d2, v, v_last) in enumerate(zip(frozen.tolist(), to_hand.tolist(), speed.tolist(),
+                                                           self._last_speed.tolist(), strict=True)):
+            if is_frozen:
+                ticks[i] = 0
+                if d2 < wake_radius2:
+                    wake.append(i)
+                elif d2 < 0.2**2:  # Within reach of the hand (it spans ~0.25 m): maybe touched.
+                    reach = True
+                else:
+                    idle.append(i)
+                continue
+            # Fast now or at the last check: an impact is over (slow again) by the end of the step it happens in.
+            if max(v, v_last) > config.wake_speed:
+                moving.append(i)
+            if v < config.sleep_speed and d2 >= wake_radius2:  # Resting, away from the hand.
+                ticks[i] += 1
+                if 0 < sleep_ticks <= ticks[i]:
+                    sleep.append(i)
+            else:
+                ticks[i] = 0
         self._last_speed = speed
-        wake = frozen & near_hand
-        # Read the contacts (a Python loop over them) only when some frozen object is within reach (the hand
-        # spans ~0.25 m; a moving block, its own size) of something that could touch it.
-        reach = to_hand < 0.2**2
-        if moving.any():
-            offsets = p_WO[:, None, :] - p_WO[None, moving, :]
-            reach |= np.einsum("ijk,ijk->ij", offsets, offsets).min(axis=1) < 0.2**2
-        reach &= frozen
-        if (reach > wake).any():  # Frozen, within reach and not woken yet.
-            wake |= frozen & self._touched(plant_context, frozen, moving)
-        still = speed < config.sleep_speed
-        still &= awake
-        still &= ~near_hand
-        self._still_ticks += 1
-        self._still_ticks *= still  # Reset to 0 where not still.
-        if config.enabled and config.sleep_ticks > 0:
-            sleep = self._still_ticks >= config.sleep_ticks
-            changed = (wake | sleep).any()
-        else:
-            sleep, changed = None, wake.any()
-        if not changed:
+        if moving and idle and not reach:  # A frozen object within a moving object's size of it may be touched.
+            positions = p_WO.tolist()
+            movers = [positions[j] for j in moving]
+            reach = any((x - mx) ** 2 + (y - my) ** 2 + (z - mz) ** 2 < 0.2**2
+                        for x, y, z in (positions[i] for i in idle) for mx, my, mz in movers)
+        if reach:  # Read the contacts (a Python loop over them) only then.
+            is_moving = np.zeros(len(self.names), dtype=bool)
+            is_moving[moving] = True
+            touched = np.flatnonzero(frozen & self._touched(plant_context, frozen, is_moving)).tolist()
+            wake = sorted(set(wake).union(touched))
+        if not wake and not sleep:
+            self._still_ticks = np.array(ticks)
             return []
-        ticks = self._still_ticks.copy()
-        self.set_frozen(root, frozen & ~wake if sleep is None else (frozen & ~wake) | sleep)
-        self._still_ticks = ticks if sleep is None else np.where(sleep, 0, ticks)
-        return [self.names[i] for i in np.flatnonzero(wake)] if wake.any() else []
+        new_frozen = frozen.copy()
+        new_frozen[wake], new_frozen[sleep] = False, True
+        self.set_frozen(root, new_frozen)
+        for i in sleep:
+            ticks[i] = 0
+        self._still_ticks = np.array(ticks)
+        return [self.names[i] for i in wake]
 
     def _touched(self, plant_context: Context, frozen: np.ndarray, moving: np.ndarray) -> np.ndarray:
         """Frozen objects in contact with the robot or with a moving object (the current state's contacts).
