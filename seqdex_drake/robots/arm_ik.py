@@ -18,6 +18,21 @@ from seqdex_drake.robots.allegro import PALM_BODY, p_PalmPc_Palm
 from seqdex_drake.robots.franka import FRANKA_Q_MAX, FRANKA_Q_MIN
 
 
+def rotation_vector(R: np.ndarray) -> tuple[float, float, float]:
+    """angle * axis of a rotation matrix (its log map), in float arithmetic (Drake's ``ToAngleAxis`` costs a few
+    Python calls, every env step): from the skew part, sin(angle) axis, and the trace, 1 + 2 cos(angle). Turns
+    beyond 90 degrees, where the skew part loses the axis, go to Drake."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()
+    x, y, z = 0.5 * (r21 - r12), 0.5 * (r02 - r20), 0.5 * (r10 - r01)
+    cosine = 0.5 * (r00 + r11 + r22 - 1.0)
+    if cosine < 0.0:
+        angle_axis = RotationMatrix(R).ToAngleAxis()
+        return tuple((angle_axis.angle() * angle_axis.axis()).tolist())
+    sine = math.sqrt(x * x + y * y + z * z)
+    k = math.atan2(sine, cosine) / sine if sine > 0.0 else 1.0
+    return k * x, k * y, k * z
+
+
 class PalmIK:
     """Damped least-squares IK for a point fixed in the palm (default: the palm centre) and the palm orientation.
 
@@ -42,6 +57,7 @@ class PalmIK:
         self._X_PalmC = RigidTransform(self.p_PalmC_Palm)
         self._world = controller_plant.world_frame()
         self._damping_eye = (damping, damping**2 * np.eye(6))  # Recomputed if ``damping`` is changed.
+        self._target = (None, None)  # (R_WP_target, its matrix) of the last step (the env holds one orientation).
         self._last = (None, None)  # (q_arm bytes, X_WC) of the last palm_pose call: the env asks twice a tick.
 
     def palm_pose(self, q_arm: np.ndarray) -> RigidTransform:
@@ -60,15 +76,16 @@ class PalmIK:
     def step(self, q_arm: np.ndarray, p_WC_target: np.ndarray, R_WP_target: RotationMatrix,
              max_step: float = 0.05) -> np.ndarray:
         """One DLS step: the joint positions moving the palm centre toward the target, within joint limits."""
-        X_WPc = self.palm_pose(q_arm)
+        X_WPc = self.palm_pose(q_arm).GetAsMatrix34()
         J = self.plant.CalcJacobianSpatialVelocity(self.context, JacobianWrtVariable.kQDot, self.palm,
                                                    self.p_PalmC_Palm, self._world, self._world)
-        rotation_error = (R_WP_target @ X_WPc.rotation().inverse()).ToAngleAxis()
-        error = np.empty(6)
-        error[:3] = (self.orientation_weight * rotation_error.angle()) * rotation_error.axis()
-        error[3:] = p_WC_target
-        error[3:] -= X_WPc.translation()
-        J[:3] *= self.orientation_weight  # J is our own fresh array.
+        if self._target[0] is not R_WP_target:
+            self._target = (R_WP_target, R_WP_target.matrix())
+        w = self.orientation_weight
+        rx, ry, rz = rotation_vector(self._target[1] @ X_WPc[:, :3].T)  # R_target R^T: the rotation still to go.
+        (px, py, pz), (cx, cy, cz) = np.asarray(p_WC_target, dtype=float).tolist(), X_WPc[:, 3].tolist()
+        error = np.array([w * rx, w * ry, w * rz, px - cx, py - cy, pz - cz])
+        J[:3] *= w  # J is our own fresh array.
         if self._damping_eye[0] != self.damping:
             self._damping_eye = (self.damping, self.damping**2 * np.eye(6))
         # J J^T + damping^2 I is symmetric positive definite: LAPACK's Cholesky solve, called directly (numpy's
@@ -80,7 +97,8 @@ class PalmIK:
         norm = math.sqrt(float(dq @ dq))
         if norm > max_step:
             dq *= max_step / norm
-        return np.minimum(np.maximum(q_arm + dq, FRANKA_Q_MIN), FRANKA_Q_MAX)
+        dq += q_arm
+        return np.minimum(np.maximum(dq, FRANKA_Q_MIN, out=dq), FRANKA_Q_MAX, out=dq)
 
     def solve(self, q_arm: np.ndarray, p_WC_target: np.ndarray, R_WP_target: RotationMatrix,
               iterations: int = 300, tolerance: float = 1e-4) -> tuple[np.ndarray, float]:
