@@ -287,8 +287,8 @@ class SubtaskEnv(gym.Env):
             return self.observation(), 0.0, False, True, {"nan_action": True, "success": False}
         action = np.minimum(np.maximum(self.randomizer.perturb_action(action), -1.0), 1.0)  # DR hook: action noise
         if self.config.hand_actions:
-            ema = self.config.ema
-            self._hand_target = ema * scale_action_to_limits(action[:16]) + (1 - ema) * self._hand_target
+            ema, target = self.config.ema, scale_action_to_limits(action[:16])
+            self._hand_target = target if ema == 1.0 else ema * target + (1 - ema) * self._hand_target
         else:
             action[:16] = 0.0  # Ignored; zeroed so the previous-action observation does not carry them.
         # Integrate the wrist command from the previous *target*, not the measured arm: with a payload the
