@@ -83,7 +83,7 @@ def test_goal_errors_read_from_the_observation_match_the_pose(env):
 
 
 def test_quaternions_match_drakes_conversion():
-    """The batched rotation-matrix-to-quaternion conversion agrees with Drake's, also at the 180-degree turns
+    """The float rotation-matrix-to-quaternion conversion agrees with Drake's, also at the 180-degree turns
     where w = 0 and each pivot of Shepperd's method is taken."""
     from pydrake.common.eigen_geometry import Quaternion
     from pydrake.math import RotationMatrix
@@ -95,7 +95,7 @@ def test_quaternions_match_drakes_conversion():
     rotations += [RotationMatrix(), RotationMatrix.MakeXRotation(np.pi), RotationMatrix.MakeYRotation(np.pi),
                   RotationMatrix.MakeZRotation(np.pi), RotationMatrix.MakeXRotation(-0.5 * np.pi)]
     expected = np.array([pose_vector(RigidTransform(R, np.zeros(3)))[3:] for R in rotations])
-    q = quaternions_wxyz(np.array([R.matrix() for R in rotations]))
+    q = np.array(quaternions_wxyz(np.array([R.matrix() for R in rotations])))
     assert np.all(q[:, 0] >= 0.0)
     # At w = 0, q and -q are the same rotation: compare up to that sign there.
     flip = (np.abs(expected[:, 0]) < 1e-12) & (np.sum(q * expected, axis=1) < 0)

@@ -22,6 +22,7 @@ appends the pixel count (160).
 """
 
 import dataclasses
+import math
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -97,38 +98,28 @@ def quat_conjugate(q: np.ndarray) -> np.ndarray:
     return np.array([q[0], -q[1], -q[2], -q[3]], dtype=float)
 
 
-def _quaternion_map() -> tuple[np.ndarray, np.ndarray]:
-    """(W, c) with ``R.ravel() @ W + c == (4 q q^T).ravel()`` for the unit quaternion q = [w, x, y, z] of any
-    rotation matrix R: the diagonal is 1 +- the diagonal entries of R (4 w^2 = 1 + tr R, 4 x^2 = 1 + r00 - r11 -
-    r22, ...), the rest sums and differences of off-diagonal pairs (4 w x = r21 - r12, 4 x y = r01 + r10, ...)."""
-    W, c = np.zeros((9, 16)), np.zeros(16)
-    signs = {0: (1, 1, 1), 1: (1, -1, -1), 2: (-1, 1, -1), 3: (-1, -1, 1)}  # Of r00, r11, r22 in 4 q_a^2 - 1.
-    for a, sign in signs.items():
-        c[5 * a] = 1.0
-        W[[0, 4, 8], 5 * a] = sign
-    pairs = {(0, 1): ((2, 1), (1, 2), -1), (0, 2): ((0, 2), (2, 0), -1), (0, 3): ((1, 0), (0, 1), -1),
-             (1, 2): ((0, 1), (1, 0), 1), (1, 3): ((0, 2), (2, 0), 1), (2, 3): ((1, 2), (2, 1), 1)}
-    for (a, b), ((i, j), (k, m), sign) in pairs.items():
-        for entry in (4 * a + b, 4 * b + a):
-            W[3 * i + j, entry], W[3 * k + m, entry] = 1.0, sign
-    return W, c
-
-
-_QUATERNION_W, _QUATERNION_C = _quaternion_map()
-
-
-def quaternions_wxyz(R: np.ndarray) -> np.ndarray:
-    """(n, 4) unit quaternions [w, x, y, z], w >= 0, of (n, 3, 3) rotation matrices, in a few array operations
-    (per-matrix conversions through Drake cost a few Python calls each, at every env step). Each row of
-    4 q q^T is q scaled by 4 q_a; the row of the largest diagonal entry divides best (Shepperd's method)."""
-    n = len(R)
-    K = (R.reshape(n, 9) @ _QUATERNION_W + _QUATERNION_C).reshape(n, 4, 4)
-    diagonal = K.reshape(n, 16)[:, ::5]
-    rows = np.arange(n)
-    pivot = diagonal.argmax(axis=1)
-    q = K[rows, pivot] / (2.0 * np.sqrt(diagonal[rows, pivot]))[:, None]
-    q[q[:, 0] < 0.0] *= -1.0
-    return q
+def quaternions_wxyz(R: np.ndarray) -> list[list[float]]:
+    """Unit quaternions [w, x, y, z], w >= 0, of (n, 3, 3) rotation matrices (Shepperd's method: the largest
+    of 4 w^2 = 1 + tr R, 4 x^2 = 1 + 2 r00 - tr R, ... fixes the divisor), in float arithmetic: per-matrix
+    conversions through Drake cost a few Python calls each, and array operations over six matrices most of
+    their time in numpy's per-call overhead, at every env step."""
+    quaternions = []
+    for (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) in R.tolist():
+        trace = r00 + r11 + r22
+        if trace >= r00 and trace >= r11 and trace >= r22:
+            s = 2.0 * math.sqrt(1.0 + trace)
+            q = [0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s]
+        elif r00 >= r11 and r00 >= r22:
+            s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
+            q = [(r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s]
+        elif r11 >= r22:
+            s = 2.0 * math.sqrt(1.0 - r00 + r11 - r22)
+            q = [(r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s]
+        else:
+            s = 2.0 * math.sqrt(1.0 - r00 - r11 + r22)
+            q = [(r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s]
+        quaternions.append(q if q[0] >= 0.0 else [-q[0], -q[1], -q[2], -q[3]])
+    return quaternions
 
 
 def pose_vector(X) -> np.ndarray:
@@ -229,7 +220,7 @@ class ObservationAssembler(LeafSystem):
         bodies = (*self._tip_bodies, self._palm, self._bodies[target.object_body])
         X = np.array([plant.EvalBodyPoseInWorld(plant_context, body).GetAsMatrix34() for body in bodies])
         V = np.array([plant.EvalBodySpatialVelocityInWorld(plant_context, body).get_coeffs() for body in bodies])
-        rows = np.empty((6, 13))
+        rows = out[46:124].reshape(6, 13)  # A view: the rows are written in place.
         rows[:, 7:10], rows[:, 10:13] = V[:, 3:], V[:, :3]  # Drake's coefficients are [angular, linear].
         if not self._tips_are_bodies:  # X_WF = X_WB X_BF; F moves at v_WB + w_WB x p_BF (in the world).
             R_WB, X_BF = X[:4, :, :3], self._X_BF
@@ -239,7 +230,6 @@ class ObservationAssembler(LeafSystem):
             X[:4, :, :3] = R_WB @ X_BF[:, :, :3]
         rows[:, :3] = X[:, :, 3]
         rows[:, 3:7] = quaternions_wxyz(X[:, :, :3])  # The hemisphere qw >= 0.
-        out[46:124] = rows.ravel()
         out[124:143] = previous_action
         out[143:159] = net_actuation
         if self._goal:
