@@ -293,7 +293,7 @@ class SubtaskEnv(gym.Env):
             action[:16] = 0.0  # Ignored; zeroed so the previous-action observation does not carry them.
         # Integrate the wrist command from the previous *target*, not the measured arm: with a payload the
         # PD controller sags a little, and re-targeting from the measurement would turn that sag into drift.
-        p_WC = self.ik.palm_pose(self._arm_target).translation() + self.config.wrist_step * action[16:]
+        p_WC = self.ik.palm_position(self._arm_target) + self.config.wrist_step * action[16:]
         p_WC[2] = max(p_WC[2], self.config.wrist_floor)
         arm_target = self.ik.step(self._arm_target, p_WC, self.R_WP_hold)
         # The target moves at (arm_target - previous target) / period: feed that velocity forward, or the arm's

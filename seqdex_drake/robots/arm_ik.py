@@ -54,29 +54,38 @@ class PalmIK:
         self.damping = damping
         self.orientation_weight = orientation_weight
         self.p_PalmC_Palm = np.asarray(p_PalmC_Palm, dtype=float)
-        self._X_PalmC = RigidTransform(self.p_PalmC_Palm)
         self._world = controller_plant.world_frame()
         self._damping_eye = (damping, damping**2 * np.eye(6))  # Recomputed if ``damping`` is changed.
         self._target = (None, None)  # (R_WP_target, its matrix) of the last step (the env holds one orientation).
-        self._last = (None, None)  # (q_arm bytes, X_WC) of the last palm_pose call: the env asks twice a tick.
+        self._last = (None, None)  # (q_arm bytes, X_WC 3 x 4) of the last pose computed (_pose).
 
     def palm_pose(self, q_arm: np.ndarray) -> RigidTransform:
         """X_WC: the controlled point with the palm's orientation, in the world, for arm positions ``q_arm``.
 
         Leaves ``self.context`` at ``q_arm`` (``step`` evaluates the Jacobian there)."""
+        X_WC = self._pose(q_arm)
+        return RigidTransform(RotationMatrix(X_WC[:, :3]), X_WC[:, 3])
+
+    def palm_position(self, q_arm: np.ndarray) -> np.ndarray:
+        """p_WC: the controlled point's world position for arm positions ``q_arm`` (as :meth:`palm_pose`)."""
+        return self._pose(q_arm)[:, 3].copy()
+
+    def _pose(self, q_arm: np.ndarray) -> np.ndarray:
+        """X_WC as a 3 x 4 matrix [R | p] (read only), computed once for consecutive calls with the same
+        ``q_arm`` (the env asks twice a tick)."""
         key = np.asarray(q_arm, dtype=float).tobytes()  # Cheaper to compare than np.array_equal, per step.
-        q_last, X_last = self._last
-        if key == q_last:
-            return X_last
-        self.plant.SetPositions(self.context, q_arm)
-        X_WC = self.palm.CalcPoseInWorld(self.context).multiply(self._X_PalmC)
-        self._last = (key, X_WC)
-        return X_WC
+        if key != self._last[0]:
+            self.plant.SetPositions(self.context, q_arm)
+            X_WC = self.palm.CalcPoseInWorld(self.context).GetAsMatrix34()  # X_WPalm; C shares its rotation.
+            X_WC[:, 3] += X_WC[:, :3] @ self.p_PalmC_Palm
+            X_WC.flags.writeable = False
+            self._last = (key, X_WC)
+        return self._last[1]
 
     def step(self, q_arm: np.ndarray, p_WC_target: np.ndarray, R_WP_target: RotationMatrix,
              max_step: float = 0.05) -> np.ndarray:
         """One DLS step: the joint positions moving the palm centre toward the target, within joint limits."""
-        X_WPc = self.palm_pose(q_arm).GetAsMatrix34()
+        X_WPc = self._pose(q_arm)
         J = self.plant.CalcJacobianSpatialVelocity(self.context, JacobianWrtVariable.kQDot, self.palm,
                                                    self.p_PalmC_Palm, self._world, self._world)
         if self._target[0] is not R_WP_target:
@@ -106,7 +115,7 @@ class PalmIK:
         q = np.asarray(q_arm, dtype=float).copy()
         for _ in range(iterations):
             q = self.step(q, p_WC_target, R_WP_target, max_step=0.2)
-            error = np.linalg.norm(self.palm_pose(q).translation() - p_WC_target)
+            error = np.linalg.norm(self.palm_position(q) - p_WC_target)
             if error < tolerance:
                 break
         return q, float(error)

@@ -182,7 +182,7 @@ class WristTargetIntegrator(LeafSystem):
         if self._in_charge_port.Eval(context)[0] < 0.5:
             return np.asarray(self._osc_port.Eval(context), dtype=float)
         q = context.get_discrete_state(self._q_index).get_value()
-        p_WC = self._ik.palm_pose(q).translation() + self._wrist_port.Eval(context)
+        p_WC = self._ik.palm_position(q) + self._wrist_port.Eval(context)
         return np.concatenate((self._ik.step(q, p_WC, self._R_WP), np.zeros(NUM_ARM)))
 
     def _calc(self, context: Context, output: BasicVector) -> None:

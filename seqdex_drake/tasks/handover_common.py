@@ -31,7 +31,7 @@ WRIST_FLOOR = TABLE_TOP + 0.07
 
 def hand_center(env) -> np.ndarray:
     """World position of the hand centre (the point the wrist action translates), from the measured arm."""
-    return env.ik.palm_pose(env.arm_q()).translation()
+    return env.ik.palm_position(env.arm_q())
 
 
 def place_block_and_hand(env, rng: np.random.Generator, offset_low: np.ndarray, offset_high: np.ndarray) -> None:
