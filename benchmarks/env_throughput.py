@@ -9,9 +9,12 @@ woke or re-froze objects (Search's pile). Both runs then simulate exactly the sa
 (``raw_replays_env_exactly`` checks that they end in bit-identical states), and env / raw is the cost of the env's
 own code alone. (Earlier versions held the last targets and ran no wake check, so the two runs moved differently:
 Orient's raw loop came out slower than the env, Search's kept disturbed blocks frozen and cheap.)
-The two alternate ``--repeats`` times and the times are summed: ratios of sums, so that the machine's speed, which
-drifts by 20-30 % within minutes here, weighs on both sides alike (best-of-N rates did not: the best of each side
-could come from different minutes).
+The two are interleaved in chunks of ``CHUNK_STEPS`` (10) control steps: the env steps a chunk from the chunk's
+start state, the raw loop replays that chunk from the same state, and the next chunk starts where the env's ended;
+this runs for about ``--seconds`` of env time, ``--repeats`` times from the saved state, and the times are summed.
+Ratios of sums over finely interleaved chunks, so that the machine's speed, which drifts by 20-30 % within
+minutes here, weighs on both sides alike. (Best-of-N rates did not: the best of each side could come from
+different minutes. Session 6 alternated whole 3 s runs, still long enough for single tasks to move by 0.1.)
 ``raw_with_tactile_solve_steps_per_s`` adds to the raw loop only the motor-tactile read (the hand's net
 actuation); ``env_over_raw_ceiling`` = that rate / raw is the most
 the env/raw ratio can reach with these observations, however cheap the rest of the env step. With the scenarios'
@@ -55,6 +58,8 @@ from seqdex_drake.envs.vector import ProcessVectorEnv
 from seqdex_drake.tasks.registry import PAPER_TASKS, make_env, task_names
 
 WARMUP_STEPS = 5
+CHUNK_STEPS = 10
+"""Env steps per interleaved chunk of the single-process measurement (each followed by its raw replay)."""
 
 
 def _sources(env) -> list:
@@ -121,11 +126,18 @@ def single_process(name: str, seconds: float, repeats: int) -> dict:
     max_steps = env.config.episode_length - 1  # Stay inside one episode (no truncation).
     total_steps, env_time, raw_time, tactile_time, replays_exactly = 0, 0.0, 0.0, 0.0, True
     for _ in range(repeats):
-        steps, elapsed, replay = _time_env(env, state, seconds, max_steps)
-        raw_elapsed, exact = _time_raw(env, state, steps, replay)
-        total_steps, env_time, raw_time = total_steps + steps, env_time + elapsed, raw_time + raw_elapsed
-        tactile_time += _time_raw(env, state, steps, replay, tactile=True)[0]
-        replays_exactly = replays_exactly and exact
+        # In chunks of CHUNK_STEPS: the env steps from the chunk's start state, then the raw loop replays the same
+        # chunk from the same state; the next chunk starts where the env's ended. Interleaved this finely, both
+        # sides see the same machine speed, which drifts by 20-30 % within minutes here.
+        chunk_state, steps, elapsed = state, 0, 0.0
+        while steps < max_steps and (steps == 0 or elapsed < seconds):
+            n, chunk_elapsed, replay = _time_env(env, chunk_state, seconds, min(CHUNK_STEPS, max_steps - steps))
+            next_state = env.get_state()
+            raw_elapsed, exact = _time_raw(env, chunk_state, n, replay)
+            tactile_time += _time_raw(env, chunk_state, n, replay, tactile=True)[0]
+            steps, elapsed, raw_time = steps + n, elapsed + chunk_elapsed, raw_time + raw_elapsed
+            replays_exactly, chunk_state = replays_exactly and exact, next_state
+        total_steps, env_time = total_steps + steps, env_time + elapsed
     return {"env_steps_per_s": round(total_steps / env_time, 1), "raw_steps_per_s": round(total_steps / raw_time, 1),
             "env_over_raw": round(raw_time / env_time, 3), "steps": total_steps,
             "raw_replays_env_exactly": replays_exactly,
