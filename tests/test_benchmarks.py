@@ -4,6 +4,7 @@ the benchmarks, not in tests); only that they are there and make sense."""
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -50,3 +51,13 @@ def test_osc_solve_time_reports_the_solves():
     result = _run("osc_solve_time.py")
     assert result["ticks"] > 0 and result["qp_failures"] == 0
     assert 0 < result["osc_solve_ms_p50"] <= result["osc_solve_ms_p99"] <= result["osc_solve_ms_max"]
+
+
+def test_env_instructions_splits_the_step_into_physics_and_env_code():
+    if shutil.which("valgrind") is None:
+        pytest.fail("valgrind is not installed; install it with: apt-get install -y valgrind (see .ci/run)")
+    result = _run("env_instructions.py")
+    counts = result["per_step"]["tool_grasp"]
+    assert 0 < counts["outside"] < counts["advance_to"]
+    assert abs(counts["total"] - counts["advance_to"] - counts["outside"]) <= 1  # Each rounded per step.
+    assert 0 < counts["outside_fraction"] < 0.5 and result["outside_min"] == counts["outside_fraction"]
