@@ -237,7 +237,7 @@ class SceneObjects:
         offsets *= offsets
         to_hand = offsets.sum(axis=2).min(axis=1)
         # The decisions, object by object in plain Python: a handful of objects in most scenes, where numpy's
-        # per-call overhead would cost more than the logic (the 72-block pile: ~30 us).
+        # per-call overhead would cost more than the logic.
         wake_radius2, ticks = config.wake_radius**2, self._still_ticks.tolist()
         sleep_ticks = config.sleep_ticks if config.enabled else 0
         wake, sleep, moving, idle, reach = [], [], [], [], False
