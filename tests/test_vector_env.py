@@ -205,3 +205,12 @@ def test_an_env_that_raises_is_named_and_its_process_mates_are_not_blamed():
     _assert_all_dead(vector_env)
     with pytest.raises(ValueError, match="envs_per_worker"):
         ProcessVectorEnv(TASK, 2, envs_per_worker=0)
+
+
+def test_the_default_layout_is_one_process_per_core(monkeypatch):
+    from seqdex_drake.envs.vector import default_envs_per_worker
+
+    monkeypatch.setattr("os.sched_getaffinity", lambda pid: {0, 1})  # A 2-core machine.
+    assert [default_envs_per_worker(n) for n in (1, 2, 3, 16)] == [1, 1, 2, 8]
+    monkeypatch.setattr("os.sched_getaffinity", lambda pid: set(range(16)))
+    assert [default_envs_per_worker(n) for n in (2, 16, 17)] == [1, 1, 2]

@@ -81,8 +81,9 @@ class PipelineConfig:
     """Parallel envs of each PPO phase."""
     backend: str = "process"
     """Vector env of the sub-task phases: ``process`` (worker processes) or ``serial`` (in this process)."""
-    envs_per_worker: int = 1
-    """With the process backend, envs each worker process steps in turn (results do not depend on it)."""
+    envs_per_worker: int | None = None
+    """With the process backend, envs each worker process steps in turn (results do not depend on it); None:
+    ceil(num_envs / cores) (``envs.vector.default_envs_per_worker``)."""
     episode_length_cap: int = 0
     """If > 0, every stage's episode is cut to at most this many steps (``--test``)."""
     hidden_sizes: tuple[int, ...] = ()
@@ -96,7 +97,7 @@ class PipelineConfig:
             raise PipelineError(f"unknown method {self.method!r}; methods: {', '.join(METHODS)}")
         if self.backend not in ("process", "serial"):
             raise PipelineError(f"backend must be 'process' or 'serial', got {self.backend!r}")
-        if self.envs_per_worker < 1:
+        if self.envs_per_worker is not None and self.envs_per_worker < 1:
             raise PipelineError(f"envs_per_worker must be >= 1, got {self.envs_per_worker}")
         self.hidden_sizes = tuple(int(h) for h in self.hidden_sizes)
 

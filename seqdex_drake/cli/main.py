@@ -45,9 +45,9 @@ def build_parser() -> argparse.ArgumentParser:
     _common(train, tasks, "continue the run in --run-dir from its last.pt (same counters, optimizer, RNG)")
     train.add_argument("--steps", type=int, help="total environment steps of the run (summed over envs)")
     train.add_argument("--num-envs", type=int, default=2, help="parallel envs (default: 2)")
-    train.add_argument("--envs-per-worker", type=int, default=1,
-                       help="envs each worker process steps in turn (default: 1); more than 1 when envs outnumber "
-                            "cores: fewer processes and messages, same results")
+    train.add_argument("--envs-per-worker", type=int,
+                       help="envs each worker process steps in turn (default: ceil(num-envs / cores), one process "
+                            "per core); any value gives the same results")
     train.add_argument("--initial-states", metavar="BUFFER",
                        help="start episodes from the previous sub-task's terminal buffer (seqdex collect)")
 

@@ -39,7 +39,8 @@ def add_parsers(commands) -> None:
     pipeline.add_argument("--eval-episodes", type=int, help="chain episodes of the final evaluation")
     pipeline.add_argument("--lambda2", type=float, help="weight of the transition bonus (lambda1 is 1)")
     pipeline.add_argument("--backend", choices=["process", "serial"], help="vector env of the PPO phases")
-    pipeline.add_argument("--envs-per-worker", type=int, help="process backend: envs per worker process (default 1)")
+    pipeline.add_argument("--envs-per-worker", type=int,
+                          help="process backend: envs per worker process (default: ceil(num envs / cores))")
     _common(pipeline, "continue the run in --run-dir where it stopped (same flags)")
 
     feasibility = commands.add_parser("feasibility", help="train a stage's transition feasibility function",

@@ -23,6 +23,7 @@ process that died or hung is killed and started again, and each of its envs coun
 
 import multiprocessing as mp
 import multiprocessing.connection
+import os
 import signal
 import sys
 import time
@@ -79,6 +80,13 @@ def _worker(index: int, remote, parent_remote, task_name: str, config: TaskConfi
     finally:
         remote.close()
 
+
+
+def default_envs_per_worker(num_envs: int) -> int:
+    """ceil(num_envs / cores available to this process): as many worker processes as cores, the envs spread
+    over them (the CLI's default layout; README: 8 envs per worker gave a better 2-worker speedup than 1)."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, -(-max(num_envs, 1) // max(cores, 1)))
 
 class ProcessVectorEnv(VectorEnvBase):
     """``num_envs`` copies of one sub-task environment in worker processes, ``envs_per_worker`` per process.
