@@ -9,7 +9,7 @@ import dataclasses
 
 import numpy as np
 
-from seqdex_drake.envs.randomization import RandomizationConfig
+from seqdex_drake.envs.randomization_config import RandomizationConfig
 from seqdex_drake.tasks.rewards import RewardWeights
 
 
