@@ -214,3 +214,5 @@ def test_the_default_layout_is_one_process_per_core(monkeypatch):
     assert [default_envs_per_worker(n) for n in (1, 2, 3, 16)] == [1, 1, 2, 8]
     monkeypatch.setattr("os.sched_getaffinity", lambda pid: set(range(16)))
     assert [default_envs_per_worker(n) for n in (2, 16, 17)] == [1, 1, 2]
+    with ProcessVectorEnv(TASK, 3, seed=SEED, envs_per_worker=None) as vector_env:  # One process per core.
+        assert vector_env.envs_per_worker == default_envs_per_worker(3)

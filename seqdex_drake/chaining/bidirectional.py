@@ -117,11 +117,10 @@ class Pipeline:
     def _vector_env(self, index: int, seed: int):
         task, config = self.stages[index], self.task_configs[index]
         if self.config.backend == "process":
-            from seqdex_drake.envs.vector import ProcessVectorEnv, default_envs_per_worker
+            from seqdex_drake.envs.vector import ProcessVectorEnv
 
-            envs_per_worker = self.config.envs_per_worker or default_envs_per_worker(self.config.num_envs)
             return ProcessVectorEnv(task, self.config.num_envs, seed=seed, config=config,
-                                    envs_per_worker=envs_per_worker)
+                                    envs_per_worker=self.config.envs_per_worker)  # None: one process per core.
         from seqdex_drake.envs.serial import SerialVectorEnv
 
         return SerialVectorEnv([lambda slot=slot: pooled_env(task, config, 1 + slot)

@@ -97,7 +97,7 @@ def _saved_run(args, run_dir: Path, config) -> dict:
 def run(args) -> int:
     """Runs ``seqdex train`` with the parsed ``args``; returns the exit code."""
     from seqdex_drake.envs.subtask_env import EnvState
-    from seqdex_drake.envs.vector import ProcessVectorEnv, default_envs_per_worker
+    from seqdex_drake.envs.vector import ProcessVectorEnv
     from seqdex_drake.rl.checkpoint import CheckpointError
     from seqdex_drake.rl.ppo import PPO
     from seqdex_drake.scenario import DumpScenario, LoadScenario
@@ -124,9 +124,8 @@ def run(args) -> int:
         (run_dir / "scenario.yaml").write_text(DumpScenario(LoadScenario(config.scenario)))
     if args.envs_per_worker is not None and args.envs_per_worker < 1:
         raise CliError(f"--envs-per-worker must be >= 1, got {args.envs_per_worker}")
-    envs_per_worker = args.envs_per_worker or default_envs_per_worker(ppo_config.num_envs)
     vec_env = ProcessVectorEnv(args.task, ppo_config.num_envs, seed=ppo_config.seed, config=config,
-                               envs_per_worker=envs_per_worker)
+                               envs_per_worker=args.envs_per_worker)  # None: one process per core.
     try:
         if buffer is not None:
             _check_state_layout(vec_env, buffer)

@@ -81,12 +81,12 @@ def _worker(index: int, remote, parent_remote, task_name: str, config: TaskConfi
         remote.close()
 
 
-
 def default_envs_per_worker(num_envs: int) -> int:
     """ceil(num_envs / cores available to this process): as many worker processes as cores, the envs spread
     over them (the CLI's default layout; README: 8 envs per worker gave a better 2-worker speedup than 1)."""
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     return max(1, -(-max(num_envs, 1) // max(cores, 1)))
+
 
 class ProcessVectorEnv(VectorEnvBase):
     """``num_envs`` copies of one sub-task environment in worker processes, ``envs_per_worker`` per process.
@@ -101,14 +101,17 @@ class ProcessVectorEnv(VectorEnvBase):
             :class:`WorkerError`.
         max_restarts: how many env failures (over the env's life) are answered by restarting instead of raising
             :class:`WorkerError`; 0 (default) raises on the first failure.
-        envs_per_worker: envs hosted by each process (consecutive envs; the last process may host fewer).
+        envs_per_worker: envs hosted by each process (consecutive envs; the last process may host fewer); None:
+            :func:`default_envs_per_worker`, one process per core.
     """
 
     backend = "process"
 
     def __init__(self, task_name: str, num_envs: int, seed: int = 0, config: TaskConfig | None = None,
                  start_method: str = "forkserver", timeout: float = 300.0, max_restarts: int = 0,
-                 envs_per_worker: int = 1):
+                 envs_per_worker: int | None = 1):
+        if envs_per_worker is None:
+            envs_per_worker = default_envs_per_worker(num_envs)
         if not isinstance(envs_per_worker, int) or envs_per_worker < 1:
             raise ValueError(f"envs_per_worker must be an integer >= 1, got {envs_per_worker!r}")
         self.envs_per_worker = envs_per_worker
