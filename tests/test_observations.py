@@ -114,4 +114,4 @@ def test_the_steps_observation_is_the_ports():
             observation, *_ = env.step(rng.uniform(-1, 1, 19))
             port = env.assembler.get_output_port().Eval(env._assembler_context)
             np.testing.assert_array_equal(observation, port.astype(np.float32))
-            np.testing.assert_array_equal(env._assemble(), port)
+            np.testing.assert_array_equal(env._assemble_values(), port)

@@ -332,8 +332,10 @@ class DomainRandomizer:
         noise = self._obs_corr + _gaussian(self._episode, self.config.observation_uncorrelated_std, observation.size)
         return (observation + noise).astype(observation.dtype)
 
-    def perturb_action(self, action: np.ndarray) -> np.ndarray:
-        """The action plus the episode's correlated and a fresh uncorrelated noise (if enabled)."""
+    def perturb_action(self, action: list[float]) -> list[float]:
+        """The action (a list of floats, as ``SubtaskEnv.step`` handles it) plus the episode's correlated and a
+        fresh uncorrelated noise (if enabled)."""
         if not self.config.action_noise:
             return action
-        return action + self._act_corr + _gaussian(self._episode, self.config.action_uncorrelated_std, action.size)
+        noise = _gaussian(self._episode, self.config.action_uncorrelated_std, len(action))
+        return (np.asarray(action, dtype=float) + self._act_corr + noise).tolist()

@@ -17,7 +17,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, Demultiplexer
 
 from seqdex_drake.envs.randomization import DomainRandomizer
-from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, p_PalmHc_Palm, p_PalmPc_Palm, scale_action_to_limits
+from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, ALLEGRO_Q_MAX, ALLEGRO_Q_MIN, p_PalmHc_Palm, p_PalmPc_Palm
 from seqdex_drake.robots.arm_ik import PalmIK
 from seqdex_drake.scenario import LoadScenario
 from seqdex_drake.scene.objects import SceneObjects
@@ -25,13 +25,13 @@ from seqdex_drake.station import MakeControllerPlant, MakeStation, RefreshSample
 from seqdex_drake.systems.observations import (
     ACTION_SIZE,
     FINGERTIPS,
+    MOTOR_TACTILE,
     OBJECT_POSE,
     PALM_POSE,
     ObservationAssembler,
     ObservationTarget,
-    fingertip_positions,
     floats,
-    point_in_world,
+    point_in_world_values,
 )
 from seqdex_drake.tasks.base import Task, TaskConfig
 
@@ -60,6 +60,9 @@ class EnvState:
 
 COMMAND_SIZE = 14 + 32 + ACTION_SIZE
 """The env's per-step command source: arm desired state (14), hand desired state (32), previous action."""
+_HAND_LOW, _HAND_RANGE = ALLEGRO_Q_MIN.tolist(), (ALLEGRO_Q_MAX - ALLEGRO_Q_MIN).tolist()
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+_P_PALM_CENTRE = floats(p_PalmPc_Palm)
 
 
 class SubtaskEnv(gym.Env):
@@ -122,14 +125,15 @@ class SubtaskEnv(gym.Env):
         self._object_body, self._p_OOcm = None, np.zeros(3)  # Of the target object (set_target).
         self.goal = np.array([0, 0, 0, 1.0, 0, 0, 0])
         self._steps = 0
-        self._arm_target = np.asarray(self.scenario.robot.arm_home, dtype=float)
-        self._arm_velocity_target = np.zeros(7)
+        # The targets the command source holds, as lists of floats (the step's arithmetic; see ``step``).
+        self._arm_target = floats(np.asarray(self.scenario.robot.arm_home, dtype=float))
+        self._arm_velocity_target = [0.0] * 7
+        self._hand_target = floats(ALLEGRO_OPEN_Q)
+        self._previous_action = [0.0] * ACTION_SIZE
         self._scratch = None  # The plant context RefreshSampledOutputs computes into (allocated once).
-        self._step_observation = None  # The step's raw observation while the step reads it (raw_observation).
+        self._step_values = None  # The step's raw observation as floats while the step reads it back.
+        self._step_memo = {}  # What the step's readers derived from it (raw_observation, object_position).
         self._observation_target = ObservationTarget()
-        self._hand_target = np.array(ALLEGRO_OPEN_Q)
-        self._previous_action = np.zeros(ACTION_SIZE)
-        self._command = np.zeros(COMMAND_SIZE)  # [arm q, arm v, hand q, hand v (0), previous action], per step.
         self.randomizer = DomainRandomizer(self, self.config.randomization)  # DR hook (envs/randomization.py)
 
     # ------------------------------------------------------------------------------------------- state
@@ -151,29 +155,44 @@ class SubtaskEnv(gym.Env):
 
     def object_position(self) -> np.ndarray:
         """World position of the target object's centre of mass (within a step, from the step's observation)."""
-        if self._step_observation is not None:
-            return point_in_world(self._step_observation[OBJECT_POSE], self._p_OOcm)
+        if self._step_values is not None:
+            if "object_position" not in self._step_memo:
+                self._step_memo["object_position"] = np.array(self._object_point())
+            return self._step_memo["object_position"]
         return self.object_pose().multiply(self._p_OOcm)
+
+    def _object_point(self) -> list[float]:
+        """:meth:`object_position` within a step, as floats."""
+        return point_in_world_values(self._step_values[OBJECT_POSE], self._p_OOcm_values)
 
     def hand_points(self) -> np.ndarray:
         """(5, 3) world positions of the four fingertips (index, middle, ring, thumb) and the palm centre, as
         ``SceneObjects.hand_points``, from the observation (within a step, the step's own)."""
-        observation = self.raw_observation()
-        points = np.empty((5, 3))
-        points[:4] = fingertip_positions(observation)
-        points[4] = point_in_world(observation[PALM_POSE], p_PalmPc_Palm)
-        return points
+        return np.array(self._hand_point_values(floats(self.raw_observation())))
+
+    @staticmethod
+    def _hand_point_values(observation: list[float]) -> list[list[float]]:
+        """:meth:`hand_points` of an observation given as floats, as rows of floats."""
+        tips = observation[FINGERTIPS]
+        return [tips[k:k + 3] for k in range(0, 52, 13)] + [point_in_world_values(observation[PALM_POSE],
+                                                                                   _P_PALM_CENTRE)]
 
     def fingertip_distance(self) -> float:
         """Sum of the four fingertips' distances to the target object's centre (the paper's Sigma f)."""
-        cx, cy, cz = floats(self.object_position())
-        tips, total = self.raw_observation()[FINGERTIPS].tolist(), 0.0  # Rows of 13; float arithmetic (4 x 3).
+        if self._step_values is not None:
+            observation, (cx, cy, cz) = self._step_values, self._object_point()
+        else:
+            observation, (cx, cy, cz) = floats(self.raw_observation()), floats(self.object_position())
+        tips, total = observation[FINGERTIPS], 0.0  # Rows of 13; float arithmetic (4 x 3).
         for k in range(0, 52, 13):
             dx, dy, dz = tips[k] - cx, tips[k + 1] - cy, tips[k + 2] - cz
             total += math.sqrt(dx * dx + dy * dy + dz * dz)
         return total
 
     def hand_torque(self) -> np.ndarray:
+        """The torques the 16 hand motors exert (within a step, the step's observation's motor tactile)."""
+        if self._step_values is not None:
+            return np.array(self._step_values[MOTOR_TACTILE])
         return self._hand_torque_port.Eval(self._station_context)
 
     def set_robot(self, arm_q: np.ndarray, hand_q: np.ndarray) -> None:
@@ -182,8 +201,8 @@ class SubtaskEnv(gym.Env):
         self.plant.SetPositions(self.plant_context, self.hand, hand_q)
         self.plant.SetVelocities(self.plant_context, self.arm, np.zeros(7))
         self.plant.SetVelocities(self.plant_context, self.hand, np.zeros(16))
-        self._hand_target = np.array(hand_q, dtype=float)
-        self._set_sources(np.asarray(arm_q, dtype=float), self._hand_target, np.zeros(ACTION_SIZE))
+        self._hand_target = floats(np.asarray(hand_q, dtype=float))
+        self._set_sources(arm_q, self._hand_target, [0.0] * ACTION_SIZE)
 
     def hover_arm(self, p_WT: np.ndarray) -> np.ndarray:
         """Arm positions placing the hand centre ``hover_height`` above target point ``p_WT``, palm down."""
@@ -198,6 +217,7 @@ class SubtaskEnv(gym.Env):
         self.target_object = name
         self._object_body = self.objects.bodies[self.objects.index(name)]
         self._p_OOcm = self._object_body.default_com()
+        self._p_OOcm_values = floats(self._p_OOcm)
         if goal is not None:
             self.goal = np.asarray(goal, dtype=float)
         label = int(self.object_body().index())  # MultibodyPlant labels each body's geometry by body index.
@@ -207,9 +227,9 @@ class SubtaskEnv(gym.Env):
     def get_state(self) -> EnvState:
         return EnvState(self.plant.GetPositions(self.plant_context).copy(),
                         self.plant.GetVelocities(self.plant_context).copy(), self.objects.get_state(self.context),
-                        self.target_object, self.goal.copy(), self._arm_target.copy(), self._hand_target.copy(),
-                        self._previous_action.copy(), self.config.name, self._arm_velocity_target.copy(),
-                        float(self.context.get_time()))
+                        self.target_object, self.goal.copy(), np.array(self._arm_target),
+                        np.array(self._hand_target), np.array(self._previous_action), self.config.name,
+                        np.array(self._arm_velocity_target), float(self.context.get_time()))
 
     def set_state(self, state: EnvState) -> None:
         """Restores a saved state exactly (a few state writes and one contact solve for the sampled outputs; no
@@ -219,9 +239,8 @@ class SubtaskEnv(gym.Env):
         self.plant.SetVelocities(self.plant_context, state.plant_velocities)
         self.objects.set_state(self.context, state.objects)
         self.set_target(state.target_object, state.goal)
-        self._hand_target = np.array(state.hand_target)
-        self._set_sources(np.array(state.arm_target), self._hand_target, np.array(state.previous_action),
-                          np.array(state.arm_velocity_target))
+        self._hand_target = floats(np.asarray(state.hand_target, dtype=float))
+        self._set_sources(state.arm_target, self._hand_target, state.previous_action, state.arm_velocity_target)
         self.refresh_sampled_outputs()
 
     def refresh_sampled_outputs(self) -> None:
@@ -230,13 +249,13 @@ class SubtaskEnv(gym.Env):
         self._scratch = RefreshSampledOutputs(self.plant, self.plant_context, self._scratch)
 
     def _set_sources(self, arm_q, hand_q, previous_action, arm_v=None) -> None:
-        command = self._command  # Desired states [q, v] (the hand's v is 0), then the previous action.
-        command[:7], command[14:30], command[46:] = arm_q, hand_q, previous_action
-        command[7:14] = 0.0 if arm_v is None else arm_v
-        self._command_source.get_mutable_source_value(self._command_context).SetFromVector(command)
-        self._arm_target = command[:7].copy()
-        self._arm_velocity_target = command[7:14].copy()
-        self._previous_action = command[46:].copy()
+        """Writes the command source: the arm's and the hand's desired states [q, v] (the hand's v is 0) and the
+        previous action (arrays or lists; kept as lists of floats)."""
+        command = [*floats(arm_q), *([0.0] * 7 if arm_v is None else floats(arm_v)), *floats(hand_q),
+                   *[0.0] * 16, *floats(previous_action)]
+        self._command_source.get_mutable_source_value(self._command_context).SetFromVector(np.array(command))
+        self._arm_target, self._arm_velocity_target = command[:7], command[7:14]
+        self._previous_action = command[46:]
 
     def raw_observation(self) -> np.ndarray:
         """The assembled observation (float64, before any observation noise).
@@ -244,17 +263,21 @@ class SubtaskEnv(gym.Env):
         Outside a step: the observation port's value (Drake caches it until the state changes). Inside a step,
         where the tasks' rewards and success tests and the wake check read it: the step's own observation,
         assembled once (read-only)."""
-        if self._step_observation is not None:
-            return self._step_observation
+        if self._step_values is not None:
+            if "raw_observation" not in self._step_memo:
+                raw = np.array(self._step_values)
+                raw.flags.writeable = False
+                self._step_memo["raw_observation"] = raw
+            return self._step_memo["raw_observation"]
         return self.assembler.get_output_port().Eval(self._assembler_context)
 
-    def _assemble(self) -> np.ndarray:
-        """The observation port's value, computed on the plant's own context from the values the port's inputs
-        carry (the same numbers; without copying the state into the assembler's context and computing the
-        kinematics there too)."""
+    def _assemble_values(self) -> list[float]:
+        """The observation port's value as floats, computed on the plant's own context from the values the
+        port's inputs carry (the same numbers; without copying the state into the assembler's context and
+        computing the kinematics there too)."""
         image = None if self._label_port is None else self._label_port.Eval(self._station_context)
-        return self.assembler.assemble(self._plant_context, self._observation_target, self._previous_action,
-                                       self.hand_torque(), image)
+        return self.assembler.assemble_values(self._plant_context, self._observation_target, self._previous_action,
+                                              self._hand_torque_port.Eval(self._station_context), image)
 
     def observation(self) -> np.ndarray:
         return self.raw_observation().astype(np.float32)
@@ -280,50 +303,57 @@ class SubtaskEnv(gym.Env):
         return self.randomizer.perturb_observation(self.observation()), {"success": bool(self.task.is_success(self))}
 
     def step(self, action):
+        # The step's arithmetic is on Python floats and lists, with a handful of Drake and numpy calls: right
+        # after the physics, this code runs with its caches cold, where every distinct numpy function costs
+        # microseconds (see the README's "Where the env time goes").
         action = np.asarray(action, dtype=float)
         if action.shape != (ACTION_SIZE,):
             raise ValueError(f"action must have shape ({ACTION_SIZE},), got {action.shape}")
-        if not np.isfinite(action).all():
+        a = action.tolist()
+        if not all(map(math.isfinite, a)):
             return self.observation(), 0.0, False, True, {"nan_action": True, "success": False}
-        action = np.minimum(np.maximum(self.randomizer.perturb_action(action), -1.0), 1.0)  # DR hook: action noise
-        if self.config.hand_actions:
-            ema, target = self.config.ema, scale_action_to_limits(action[:16])
-            self._hand_target = target if ema == 1.0 else ema * target + (1 - ema) * self._hand_target
+        a = [min(max(x, -1.0), 1.0) for x in self.randomizer.perturb_action(a)]  # DR hook: action noise
+        if self.config.hand_actions:  # Joint targets scaled to the limits (allegro.scale_action_to_limits).
+            target = [low + 0.5 * (x + 1.0) * r for x, low, r in zip(a[:16], _HAND_LOW, _HAND_RANGE, strict=True)]
+            ema = self.config.ema
+            self._hand_target = target if ema == 1.0 else [ema * t + (1 - ema) * h
+                                                           for t, h in zip(target, self._hand_target, strict=True)]
         else:
-            action[:16] = 0.0  # Ignored; zeroed so the previous-action observation does not carry them.
+            a[:16] = [0.0] * 16  # Ignored; zeroed so the previous-action observation does not carry them.
         # Integrate the wrist command from the previous *target*, not the measured arm: with a payload the
         # PD controller sags a little, and re-targeting from the measurement would turn that sag into drift.
-        p_WC = self.ik.palm_position(self._arm_target) + self.config.wrist_step * action[16:]
-        p_WC[2] = max(p_WC[2], self.config.wrist_floor)
-        arm_target = self.ik.step(self._arm_target, p_WC, self.R_WP_hold)
+        (cx, cy, cz), step = self.ik.palm_point(self._arm_target), self.config.wrist_step
+        p_WC = [cx + step * a[16], cy + step * a[17], max(cz + step * a[18], self.config.wrist_floor)]
+        arm_target = self.ik.step_values(self._arm_target, p_WC, self.R_WP_hold)
         # The target moves at (arm_target - previous target) / period: feed that velocity forward, or the arm's
         # heavily damped PD (kd / kp = 0.2 s) would trail a moving wrist command by centimetres.
-        arm_v = (arm_target - self._arm_target) / self.scenario.control_period
-        self._set_sources(arm_target, self._hand_target, action, arm_v)
+        period = self.scenario.control_period
+        arm_v = [(q - q_last) / period for q, q_last in zip(arm_target, self._arm_target, strict=True)]
+        self._set_sources(arm_target, self._hand_target, a, arm_v)
         info = {"nan_action": False, "simulator_error": False}
         try:
-            self.simulator.AdvanceTo(self.context.get_time() + self.scenario.control_period)
-            raw = self._assemble()
+            self.simulator.AdvanceTo(self.context.get_time() + period)
+            values = self._assemble_values()
         except RuntimeError as error:  # A failed contact solve, NaN state, ...: a truncation.
             info.update(simulator_error=True, error=str(error), success=False)
             return np.zeros(self.observation_space.shape, np.float32), 0.0, False, True, info
-        observation = raw.astype(np.float32)
-        if not np.isfinite(observation).all():
+        observation = np.array(values, dtype=np.float32)
+        # All finite (in float32) unless the sum of magnitudes says otherwise; then numpy decides exactly.
+        if not sum(map(abs, values)) < _FLOAT32_MAX and not np.isfinite(observation).all():
             info.update(simulator_error=True, error="non-finite observation", success=False)
             return np.nan_to_num(observation, nan=0.0, posinf=0.0, neginf=0.0), 0.0, False, True, info
         self._steps += 1
-        raw.flags.writeable = False
-        self._step_observation = raw  # What raw_observation() returns until the end of the step.
+        self._step_values = values  # What the readers below see (raw_observation() etc.) until the step ends.
         try:
-            terms = self.task.reward_terms(self, action)
+            terms = self.task.reward_terms(self, np.array(a))  # The action as applied (noised, clipped).
             info.update({f"reward/{k}": v for k, v in terms.items()})
             info["success"] = bool(self.task.is_success(self))
             terminated = bool(self.task.is_failure(self))
             # Last, as it moves nothing the observation, reward or success test shows (a freeze edits collision
             # filters and masses only).
-            self.objects.update(self.context, self.hand_points())
+            self.objects.update(self.context, self._hand_point_values(values))
         finally:
-            self._step_observation = None
+            self._step_values, self._step_memo = None, {}
         truncated = self._steps >= self.config.episode_length
         self.randomizer.on_step()  # DR hook: re-applies object masses, re-draws every N plant steps
         observation = self.randomizer.perturb_observation(observation)  # DR hook: observation noise

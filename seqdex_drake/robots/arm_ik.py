@@ -16,17 +16,18 @@ from scipy.linalg.lapack import dposv
 
 from seqdex_drake.robots.allegro import PALM_BODY, p_PalmPc_Palm
 from seqdex_drake.robots.franka import FRANKA_Q_MAX, FRANKA_Q_MIN
+from seqdex_drake.systems.observations import floats
 
 
-def rotation_vector(R: np.ndarray) -> tuple[float, float, float]:
-    """angle * axis of a rotation matrix (its log map), in float arithmetic (Drake's ``ToAngleAxis`` costs a few
-    Python calls, every env step): from the skew part, sin(angle) axis, and the trace, 1 + 2 cos(angle). Turns
-    beyond 90 degrees, where the skew part loses the axis, go to Drake."""
-    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()
+def rotation_vector(R) -> tuple[float, float, float]:
+    """angle * axis of a rotation matrix (its log map; an array or three rows of floats), in float arithmetic
+    (Drake's ``ToAngleAxis`` costs a few Python calls, every env step): from the skew part, sin(angle) axis,
+    and the trace, 1 + 2 cos(angle). Turns beyond 90 degrees, where the skew part loses the axis, go to Drake."""
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist() if isinstance(R, np.ndarray) else R
     x, y, z = 0.5 * (r21 - r12), 0.5 * (r02 - r20), 0.5 * (r10 - r01)
     cosine = 0.5 * (r00 + r11 + r22 - 1.0)
     if cosine < 0.0:
-        angle_axis = RotationMatrix(R).ToAngleAxis()
+        angle_axis = RotationMatrix(np.array(R, dtype=float)).ToAngleAxis()
         return tuple((angle_axis.angle() * angle_axis.axis()).tolist())
     sine = math.sqrt(x * x + y * y + z * z)
     k = math.atan2(sine, cosine) / sine if sine > 0.0 else 1.0
@@ -57,43 +58,59 @@ class PalmIK:
         self._world = controller_plant.world_frame()
         self._damping_eye = (damping, damping**2 * np.eye(6))  # Recomputed if ``damping`` is changed.
         self._target = (None, None)  # (R_WP_target, its matrix) of the last step (the env holds one orientation).
-        self._last = (None, None)  # (q_arm bytes, X_WC 3 x 4) of the last pose computed (_pose).
+        self._last = (None, None)  # (q_arm, X_WC rows) of the last pose computed (_pose).
+        self._p_PalmC_Palm = self.p_PalmC_Palm.tolist()
+        self._q_min, self._q_max = FRANKA_Q_MIN.tolist(), FRANKA_Q_MAX.tolist()
 
     def palm_pose(self, q_arm: np.ndarray) -> RigidTransform:
         """X_WC: the controlled point with the palm's orientation, in the world, for arm positions ``q_arm``.
 
         Leaves ``self.context`` at ``q_arm`` (``step`` evaluates the Jacobian there)."""
-        X_WC = self._pose(q_arm)
+        X_WC = np.array(self._pose(floats(q_arm)))
         return RigidTransform(RotationMatrix(X_WC[:, :3]), X_WC[:, 3])
 
     def palm_position(self, q_arm: np.ndarray) -> np.ndarray:
         """p_WC: the controlled point's world position for arm positions ``q_arm`` (as :meth:`palm_pose`)."""
-        return self._pose(q_arm)[:, 3].copy()
+        return np.array(self.palm_point(floats(q_arm)))
 
-    def _pose(self, q_arm: np.ndarray) -> np.ndarray:
-        """X_WC as a 3 x 4 matrix [R | p] (read only), computed once for consecutive calls with the same
-        ``q_arm`` (the env asks twice a tick)."""
-        key = np.asarray(q_arm, dtype=float).tobytes()  # Cheaper to compare than np.array_equal, per step.
-        if key != self._last[0]:
+    def palm_point(self, q_arm: list[float]) -> list[float]:
+        """:meth:`palm_position` of arm positions given as a list of floats, as a list of floats."""
+        r0, r1, r2 = self._pose(q_arm)
+        return [r0[3], r1[3], r2[3]]
+
+    def _pose(self, q_arm: list[float]) -> list[list[float]]:
+        """X_WC as three rows [r_i0, r_i1, r_i2, p_i] of floats (read only), computed once for consecutive calls
+        with the same ``q_arm`` (a list of floats; the env asks twice a tick). Float arithmetic and lists, as
+        the env's step runs this with the caches cold after the physics, where each distinct numpy function
+        costs microseconds."""
+        if q_arm != self._last[0]:
             self.plant.SetPositions(self.context, q_arm)
-            X_WC = self.palm.CalcPoseInWorld(self.context).GetAsMatrix34()  # X_WPalm; C shares its rotation.
-            X_WC[:, 3] += X_WC[:, :3] @ self.p_PalmC_Palm
-            X_WC.flags.writeable = False
-            self._last = (key, X_WC)
+            rows = self.palm.CalcPoseInWorld(self.context).GetAsMatrix34().tolist()  # X_WPalm; C shares its R.
+            px, py, pz = self._p_PalmC_Palm
+            for r in rows:
+                r[3] += r[0] * px + r[1] * py + r[2] * pz
+            self._last = (list(q_arm), rows)
         return self._last[1]
 
     def step(self, q_arm: np.ndarray, p_WC_target: np.ndarray, R_WP_target: RotationMatrix,
              max_step: float = 0.05) -> np.ndarray:
         """One DLS step: the joint positions moving the palm centre toward the target, within joint limits."""
-        X_WPc = self._pose(q_arm)
+        return np.array(self.step_values(floats(q_arm), floats(p_WC_target), R_WP_target, max_step))
+
+    def step_values(self, q_arm: list[float], p_WC_target: list[float], R_WP_target: RotationMatrix,
+                    max_step: float = 0.05) -> list[float]:
+        """:meth:`step` on lists of floats (the env's per-tick call)."""
+        r0, r1, r2 = self._pose(q_arm)
         J = self.plant.CalcJacobianSpatialVelocity(self.context, JacobianWrtVariable.kQDot, self.palm,
                                                    self.p_PalmC_Palm, self._world, self._world)
         if self._target[0] is not R_WP_target:
-            self._target = (R_WP_target, R_WP_target.matrix())
+            self._target = (R_WP_target, R_WP_target.matrix().tolist())
+        # R_target R^T: the rotation still to go (row i of the target times row j of R).
+        E = [[t[0] * r[0] + t[1] * r[1] + t[2] * r[2] for r in (r0, r1, r2)] for t in self._target[1]]
+        rx, ry, rz = rotation_vector(E)
         w = self.orientation_weight
-        rx, ry, rz = rotation_vector(self._target[1] @ X_WPc[:, :3].T)  # R_target R^T: the rotation still to go.
-        (px, py, pz), (cx, cy, cz) = np.asarray(p_WC_target, dtype=float).tolist(), X_WPc[:, 3].tolist()
-        error = np.array([w * rx, w * ry, w * rz, px - cx, py - cy, pz - cz])
+        error = np.array([w * rx, w * ry, w * rz, p_WC_target[0] - r0[3], p_WC_target[1] - r1[3],
+                          p_WC_target[2] - r2[3]])
         J[:3] *= w  # J is our own fresh array.
         if self._damping_eye[0] != self.damping:
             self._damping_eye = (self.damping, self.damping**2 * np.eye(6))
@@ -102,12 +119,11 @@ class PalmIK:
         _, x, info = dposv(J @ J.T + self._damping_eye[1], error)
         if info != 0:
             raise RuntimeError(f"PalmIK: the damped normal matrix is not positive definite (LAPACK info {info})")
-        dq = J.T @ x
-        norm = math.sqrt(float(dq @ dq))
-        if norm > max_step:
-            dq *= max_step / norm
-        dq += q_arm
-        return np.minimum(np.maximum(dq, FRANKA_Q_MIN, out=dq), FRANKA_Q_MAX, out=dq)
+        dq = (J.T @ x).tolist()
+        norm = math.sqrt(sum(d * d for d in dq))
+        scale = max_step / norm if norm > max_step else 1.0
+        return [min(max(q + d * scale, lo), hi)
+                for q, d, lo, hi in zip(q_arm, dq, self._q_min, self._q_max, strict=True)]
 
     def solve(self, q_arm: np.ndarray, p_WC_target: np.ndarray, R_WP_target: RotationMatrix,
               iterations: int = 300, tolerance: float = 1e-4) -> tuple[np.ndarray, float]:

@@ -15,6 +15,8 @@ static geometries and the frozen objects' geometries.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from pydrake.geometry import CollisionFilterDeclaration, GeometrySet
 from pydrake.math import RigidTransform
@@ -52,15 +54,14 @@ class SceneObjects:
                                  dtype=int).reshape(-1, 7)
         self._v_translational_index = np.array([b.floating_velocities_start_in_v() + 3 + np.arange(3)
                                                 for b in self.bodies], dtype=int).reshape(-1, 3)
-        # The same positions and velocities in the plant state [q, v] (the wake check reads both at once).
-        self._x_position_index = self._q_index[:, 4:]
-        self._x_velocity_index = self.plant.num_positions() + self._v_translational_index
+        # The same positions and velocities in the plant state [q, v], per object (the wake check reads both).
+        self._x_index = np.c_[self._q_index[:, 4:], self.plant.num_positions() + self._v_translational_index].tolist()
         self._geometries = [self.plant.GetCollisionGeometriesForBody(b) for b in self.bodies]
         self._static = [g for body in self.plant.GetBodiesWeldedTo(self.plant.world_body())
                         for g in self.plant.GetCollisionGeometriesForBody(body)]
         self._base_filtered = self._plant_filtered_pairs()
-        self._still_ticks = np.zeros(len(self.names), dtype=int)
-        self._last_speed = np.zeros(len(self.names))
+        self._still_ticks = [0] * len(self.names)  # Per object, as Python numbers (the wake check's arithmetic).
+        self._last_speed = [0.0] * len(self.names)
         hand = self.plant.GetModelInstanceByName("allegro")
         self._tip_frames = [self.plant.GetFrameByName(f, hand) for f in FINGERTIP_FRAMES]
         self._robot_bodies = set(self.plant.GetBodyIndices(hand)) | set(
@@ -131,13 +132,13 @@ class SceneObjects:
         """Everything besides the plant state that the objects' future depends on (for exact restores)."""
         frozen_set = self.freezer.frozen_set(self.freezer.GetMyContextFromRoot(root))
         return {"frozen": frozen_set.frozen.copy(), "q_pin": frozen_set.q_pin.copy(),
-                "still_ticks": self._still_ticks.copy(), "last_speed": self._last_speed.copy()}
+                "still_ticks": np.array(self._still_ticks, dtype=int), "last_speed": np.array(self._last_speed)}
 
     def set_state(self, root: Context, state: dict) -> None:
         """Restores :meth:`get_state` output (after the plant state has been restored)."""
         self.set_frozen(root, state["frozen"], q_pin=state["q_pin"])
-        self._still_ticks = np.array(state["still_ticks"])
-        self._last_speed = np.array(state["last_speed"])
+        self._still_ticks = [int(t) for t in state["still_ticks"]]
+        self._last_speed = [float(v) for v in state["last_speed"]]
 
     def set_frozen(self, root: Context, frozen: np.ndarray, q_pin: np.ndarray | None = None) -> None:
         """Freezes exactly the objects in mask ``frozen`` at their current poses (or ``q_pin``); wakes the others."""
@@ -150,7 +151,7 @@ class SceneObjects:
         self._update_filters(scene_graph_context, self.freezer.frozen_set(freezer_context).frozen, frozen)
         pins = self.positions(root) if q_pin is None else np.array(q_pin, dtype=float)
         self.freezer.set_frozen_set(freezer_context, FrozenSet(frozen.copy(), pins))
-        self._still_ticks[:] = 0
+        self._still_ticks = [0] * len(self.names)
 
     def redeclare_filters(self, root: Context) -> None:
         """Declares the frozen set's collision filters again in full (after ``SceneGraph.ChangeShape``, which
@@ -213,36 +214,42 @@ class SceneObjects:
         tips = [f.CalcPoseInWorld(plant_context).translation() for f in self._tip_frames]
         return np.array(tips + [self._palm_frame.CalcPoseInWorld(plant_context) @ p_PalmPc_Palm])
 
-    def update(self, root: Context, hand: np.ndarray | None = None) -> list[str]:
+    def update(self, root: Context, hand: np.ndarray | None = None, plant_state: list[float] | None = None
+               ) -> list[str]:
         """Wakes frozen objects the hand touches or comes near, or that a fast-moving object touches;
         freezes again objects that have rested, away from the hand, for ``freeze.sleep_ticks`` steps.
 
         Call once per control step. Returns the names of the objects woken. Touches come from the plant's
         contact results, which with sampled output ports are those of its last step: after editing the state
         without a step, refresh them first (``station.RefreshSampledOutputs``). ``hand``: the
-        :meth:`hand_points` of the current state, where the caller has them already.
+        :meth:`hand_points` of the current state (an array or rows of floats), and ``plant_state``: the
+        plant's [q, v] as a list of floats, where the caller has them already.
+
+        The check runs object by object in plain float arithmetic: a handful of objects in most scenes, and
+        right after a physics step, where this runs with the caches cold, every distinct numpy function
+        would cost microseconds.
         """
         config = self.scenario.freeze
         if self._last_root[0] is not root:  # The subsystem contexts of the root, looked up once per root.
             self._last_root = (root, self.plant.GetMyContextFromRoot(root), self.freezer.GetMyContextFromRoot(root))
         _, plant_context, freezer_context = self._last_root
         frozen = self.freezer.frozen_set(freezer_context).frozen  # Read only (set_frozen replaces the set).
-        x = self.plant.GetPositionsAndVelocities(plant_context)
-        p_WO, v_WO = x[self._x_position_index], x[self._x_velocity_index]
-        v_WO *= v_WO
-        speed = np.sqrt(v_WO.sum(axis=1))
+        x = self.plant.GetPositionsAndVelocities(plant_context).tolist() if plant_state is None else plant_state
         hand = self.hand_points(root) if hand is None else hand
-        # Squared distances of every object to every hand point, (n, 5): few numpy calls, as this runs per step.
-        offsets = p_WO[:, None, :] - hand
-        offsets *= offsets
-        to_hand = offsets.sum(axis=2).min(axis=1)
-        # The decisions, object by object in plain Python: a handful of objects in most scenes, where numpy's
-        # per-call overhead would cost more than the logic.
-        wake_radius2, ticks = config.wake_radius**2, self._still_ticks.tolist()
+        hand = hand.tolist() if isinstance(hand, np.ndarray) else hand
+        wake_radius2, ticks, speeds, positions = config.wake_radius**2, list(self._still_ticks), [], []
         sleep_ticks = config.sleep_ticks if config.enabled else 0
         wake, sleep, moving, idle, reach = [], [], [], [], False
-        for i, (is_frozen, d2, v, v_last) in enumerate(zip(frozen.tolist(), to_hand.tolist(), speed.tolist(),
-                                                           self._last_speed.tolist(), strict=True)):
+        for i, (is_frozen, (a, b, c, d, e, f), v_last) in enumerate(zip(frozen.tolist(), self._x_index,
+                                                                          self._last_speed, strict=True)):
+            px, py, pz, vx, vy, vz = x[a], x[b], x[c], x[d], x[e], x[f]
+            positions.append((px, py, pz))
+            v = math.sqrt(vx * vx + vy * vy + vz * vz)
+            speeds.append(v)
+            d2 = math.inf  # Squared distance to the nearest hand point.
+            for hx, hy, hz in hand:
+                dx, dy, dz = px - hx, py - hy, pz - hz
+                d2 = min(d2, dx * dx + dy * dy + dz * dz)
             if is_frozen:
                 ticks[i] = 0
                 if d2 < wake_radius2:
@@ -261,26 +268,25 @@ class SceneObjects:
                     sleep.append(i)
             else:
                 ticks[i] = 0
-        self._last_speed = speed
+        self._last_speed = speeds
         if moving and idle and not reach:  # A frozen object within a moving object's size of it may be touched.
-            positions = p_WO.tolist()
             movers = [positions[j] for j in moving]
-            reach = any((x - mx) ** 2 + (y - my) ** 2 + (z - mz) ** 2 < 0.2**2
-                        for x, y, z in (positions[i] for i in idle) for mx, my, mz in movers)
+            reach = any((ox - mx) ** 2 + (oy - my) ** 2 + (oz - mz) ** 2 < 0.2**2
+                        for ox, oy, oz in (positions[i] for i in idle) for mx, my, mz in movers)
         if reach:  # Read the contacts (a Python loop over them) only then.
             is_moving = np.zeros(len(self.names), dtype=bool)
             is_moving[moving] = True
             touched = np.flatnonzero(frozen & self._touched(plant_context, frozen, is_moving)).tolist()
             wake = sorted(set(wake).union(touched))
         if not wake and not sleep:
-            self._still_ticks = np.array(ticks)
+            self._still_ticks = ticks
             return []
         new_frozen = frozen.copy()
         new_frozen[wake], new_frozen[sleep] = False, True
         self.set_frozen(root, new_frozen)
         for i in sleep:
             ticks[i] = 0
-        self._still_ticks = np.array(ticks)
+        self._still_ticks = ticks
         return [self.names[i] for i in wake]
 
     def _touched(self, plant_context: Context, frozen: np.ndarray, moving: np.ndarray) -> np.ndarray:

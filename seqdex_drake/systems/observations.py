@@ -59,6 +59,8 @@ OBJECT_POSE = slice(111, 118)
 """The object's pose [x, y, z, qw, qx, qy, qz]."""
 OBJECT_QUATERNION = slice(114, 118)
 """The object's orientation [qw, qx, qy, qz], qw >= 0."""
+MOTOR_TACTILE = slice(143, 159)
+"""The torques the 16 Allegro motors exert."""
 GOAL_POSITION_ERROR = slice(166, 169)
 """Goal position - object position (Insert, tool Reorient)."""
 GOAL_ROTATION_ERROR = slice(169, 173)
@@ -77,49 +79,67 @@ def floats(v) -> list[float]:
 
 
 def point_in_world(pose: np.ndarray, p_BQ: np.ndarray) -> np.ndarray:
-    """p_WQ of a point Q fixed in a body B, from B's pose [x, y, z, qw, qx, qy, qz] (e.g. ``observation[PALM_POSE]``):
-    p_WB + R(q) p_BQ, with R(q) v = v + 2 w (u x v) + 2 u x (u x v) for q = [w, u], in float arithmetic."""
-    x, y, z, w, ux, uy, uz = floats(pose)
-    vx, vy, vz = floats(p_BQ)
+    """p_WQ of a point Q fixed in a body B, from B's pose [x, y, z, qw, qx, qy, qz] (e.g. the observation's
+    ``PALM_POSE``)."""
+    return np.array(point_in_world_values(floats(pose), floats(p_BQ)))
+
+
+def point_in_world_values(pose: list[float], p_BQ: list[float]) -> list[float]:
+    """:func:`point_in_world` on lists of floats: p_WB + R(q) p_BQ, with R(q) v = v + 2 w (u x v) + 2 u x (u x v)
+    for q = [w, u], in float arithmetic."""
+    x, y, z, w, ux, uy, uz = pose
+    vx, vy, vz = p_BQ
     tx, ty, tz = 2.0 * (uy * vz - uz * vy), 2.0 * (uz * vx - ux * vz), 2.0 * (ux * vy - uy * vx)  # 2 u x v
-    return np.array([x + vx + w * tx + uy * tz - uz * ty, y + vy + w * ty + uz * tx - ux * tz,
-                     z + vz + w * tz + ux * ty - uy * tx])
+    return [x + vx + w * tx + uy * tz - uz * ty, y + vy + w * ty + uz * tx - ux * tz,
+            z + vz + w * tz + ux * ty - uy * tx]
+
+
+def quat_product(a, b) -> list[float]:
+    """Hamilton product of quaternions [w, x, y, z] (short sequences of floats), as a list of floats."""
+    a0, a1, a2, a3 = a
+    b0, b1, b2, b3 = b
+    return [a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3, a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
+            a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1, a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0]
 
 
 def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of quaternions [w, x, y, z] (in float arithmetic, see :func:`floats`)."""
-    a0, a1, a2, a3 = floats(a)
-    b0, b1, b2, b3 = floats(b)
-    return np.array([a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3, a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
-                     a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1, a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0])
+    """Hamilton product of quaternions [w, x, y, z] (see :func:`quat_product`)."""
+    return np.array(quat_product(floats(a), floats(b)))
 
 
-def quat_conjugate(q: np.ndarray) -> np.ndarray:
-    return np.array([q[0], -q[1], -q[2], -q[3]], dtype=float)
+def quat_conjugate(q) -> list[float]:
+    """[w, -x, -y, -z] of a quaternion [w, x, y, z], as a list of floats."""
+    w, x, y, z = floats(q)
+    return [w, -x, -y, -z]
+
+
+def quaternion_wxyz(r0: list[float], r1: list[float], r2: list[float]) -> list[float]:
+    """The unit quaternion [w, x, y, z], w >= 0, of a rotation matrix given by its rows (floats; extra columns
+    are ignored, so the rows of a 3 x 4 [R | p] do), by Shepperd's method: the largest of 4 w^2 = 1 + tr R,
+    4 x^2 = 1 + 2 r00 - tr R, ... fixes the divisor. Plain float arithmetic: per-matrix conversions through
+    Drake cost a few Python calls each, and numpy's per-call overhead would be most of the cost, every env step."""
+    r00, r01, r02 = r0[0], r0[1], r0[2]
+    r10, r11, r12 = r1[0], r1[1], r1[2]
+    r20, r21, r22 = r2[0], r2[1], r2[2]
+    trace = r00 + r11 + r22
+    if trace >= r00 and trace >= r11 and trace >= r22:
+        s = 2.0 * math.sqrt(1.0 + trace)
+        q = [0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s]
+    elif r00 >= r11 and r00 >= r22:
+        s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
+        q = [(r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s]
+    elif r11 >= r22:
+        s = 2.0 * math.sqrt(1.0 - r00 + r11 - r22)
+        q = [(r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s]
+    else:
+        s = 2.0 * math.sqrt(1.0 - r00 - r11 + r22)
+        q = [(r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s]
+    return q if q[0] >= 0.0 else [-q[0], -q[1], -q[2], -q[3]]
 
 
 def quaternions_wxyz(R: np.ndarray) -> list[list[float]]:
-    """Unit quaternions [w, x, y, z], w >= 0, of (n, 3, 3) rotation matrices (Shepperd's method: the largest
-    of 4 w^2 = 1 + tr R, 4 x^2 = 1 + 2 r00 - tr R, ... fixes the divisor), in float arithmetic: per-matrix
-    conversions through Drake cost a few Python calls each, and array operations over six matrices most of
-    their time in numpy's per-call overhead, at every env step."""
-    quaternions = []
-    for (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) in R.tolist():
-        trace = r00 + r11 + r22
-        if trace >= r00 and trace >= r11 and trace >= r22:
-            s = 2.0 * math.sqrt(1.0 + trace)
-            q = [0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s]
-        elif r00 >= r11 and r00 >= r22:
-            s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
-            q = [(r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s]
-        elif r11 >= r22:
-            s = 2.0 * math.sqrt(1.0 - r00 + r11 - r22)
-            q = [(r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s]
-        else:
-            s = 2.0 * math.sqrt(1.0 - r00 - r11 + r22)
-            q = [(r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s]
-        quaternions.append(q if q[0] >= 0.0 else [-q[0], -q[1], -q[2], -q[3]])
-    return quaternions
+    """:func:`quaternion_wxyz` of each of (n, 3, 3) rotation matrices."""
+    return [quaternion_wxyz(*rows) for rows in np.asarray(R, dtype=float).tolist()]
 
 
 def pose_vector(X) -> np.ndarray:
@@ -167,7 +187,7 @@ class ObservationAssembler(LeafSystem):
         self._joint_index = np.concatenate(
             [plant.GetPositionsFromArray(arm, q_index), plant.GetPositionsFromArray(hand, q_index),
              self._nq + plant.GetVelocitiesFromArray(arm, v_index),
-             self._nq + plant.GetVelocitiesFromArray(hand, v_index)]).astype(int)
+             self._nq + plant.GetVelocitiesFromArray(hand, v_index)]).astype(int).tolist()
         self._tips = [plant.GetFrameByName(name, hand) for name in FINGERTIP_FRAMES]
         self._tip_bodies = [f.body() for f in self._tips]
         self._X_BF = np.array([f.GetFixedPoseInBodyFrame().GetAsMatrix34() for f in self._tips])  # (4, 3, 4)
@@ -211,31 +231,50 @@ class ObservationAssembler(LeafSystem):
         owns the plant's context and the other inputs (``SubtaskEnv``) gets the same vector directly, without
         copying the state or computing the kinematics twice (the plant's own context keeps them for its next
         step)."""
+        return np.array(self.assemble_values(plant_context, target, previous_action, net_actuation, label_image))
+
+    def assemble_values(self, plant_context, target: ObservationTarget, previous_action, net_actuation,
+                        label_image=None) -> list[float]:
+        """:meth:`assemble` as a list of floats (what ``SubtaskEnv.step`` reads back in float arithmetic).
+
+        Built in plain Python from a handful of Drake calls and ``tolist()`` conversions: right after a
+        physics step this code runs with the caches cold, where every distinct numpy function costs several
+        microseconds (see the README's "Where the env time goes"), and a list of ~160 floats is cheap."""
         if target.object_body not in self._bodies:
             raise RuntimeError("ObservationAssembler: no target object set; call set_target() at reset")
         plant = self._plant
-        out = np.empty(self.size)
-        out[0:46] = plant.GetPositionsAndVelocities(plant_context)[self._joint_index]
+        x = plant.GetPositionsAndVelocities(plant_context).tolist()
+        values = [x[i] for i in self._joint_index]
         # The 4 fingertip frames, the palm and the object, one 13-row each: pose (7), linear, angular velocity.
         bodies = (*self._tip_bodies, self._palm, self._bodies[target.object_body])
-        X = np.array([plant.EvalBodyPoseInWorld(plant_context, body).GetAsMatrix34() for body in bodies])
-        V = np.array([plant.EvalBodySpatialVelocityInWorld(plant_context, body).get_coeffs() for body in bodies])
-        rows = out[46:124].reshape(6, 13)  # A view: the rows are written in place.
-        rows[:, 7:10], rows[:, 10:13] = V[:, 3:], V[:, :3]  # Drake's coefficients are [angular, linear].
-        if not self._tips_are_bodies:  # X_WF = X_WB X_BF; F moves at v_WB + w_WB x p_BF (in the world).
-            R_WB, X_BF = X[:4, :, :3], self._X_BF
-            p_BF_W = np.einsum("nij,nj->ni", R_WB, X_BF[:, :, 3])
-            rows[:4, 7:10] += np.cross(V[:4, :3], p_BF_W)
-            X[:4, :, 3] += p_BF_W
-            X[:4, :, :3] = R_WB @ X_BF[:, :, :3]
-        rows[:, :3] = X[:, :, 3]
-        rows[:, 3:7] = quaternions_wxyz(X[:, :, :3])  # The hemisphere qw >= 0.
-        out[124:143] = previous_action
-        out[143:159] = net_actuation
+        poses = [plant.EvalBodyPoseInWorld(plant_context, body).GetAsMatrix34().tolist() for body in bodies]
+        velocities = [plant.EvalBodySpatialVelocityInWorld(plant_context, body).get_coeffs().tolist()
+                      for body in bodies]  # Drake's coefficients are [angular, linear].
+        if not self._tips_are_bodies:
+            self._tip_frames_from_bodies(poses, velocities)
+        for (r0, r1, r2), (wx, wy, wz, vx, vy, vz) in zip(poses, velocities, strict=True):
+            values += (r0[3], r1[3], r2[3])
+            values += quaternion_wxyz(r0, r1, r2)  # The hemisphere qw >= 0.
+            values += (vx, vy, vz, wx, wy, wz)
+        values += floats(previous_action)
+        values += floats(net_actuation)
         if self._goal:
-            goal = np.asarray(target.goal, dtype=float)
-            out[159:166], out[GOAL_POSITION_ERROR] = goal, goal[:3] - out[111:114]
-            out[GOAL_ROTATION_ERROR] = quat_multiply(goal[3:], quat_conjugate(out[OBJECT_QUATERNION]))
+            goal = floats(target.goal)
+            values += goal
+            values += (goal[0] - values[111], goal[1] - values[112], goal[2] - values[113])
+            values += quat_product(goal[3:], quat_conjugate(values[114:118]))
         if self._pixels:
-            out[BASE_SIZE] = np.count_nonzero(label_image.data == target.label)
-        return out
+            values.append(float(np.count_nonzero(label_image.data == target.label)))
+        return values
+
+    def _tip_frames_from_bodies(self, poses: list, velocities: list) -> None:
+        """Replaces the first four bodies' poses and velocities by their fingertip frames' (in place), for a
+        hand model whose fingertip frames are offset in their bodies: X_WF = X_WB X_BF; F moves at
+        v_WB + w_WB x p_BF (in the world)."""
+        X, V = np.array(poses[:4]), np.array(velocities[:4])
+        R_WB, X_BF = X[:, :, :3], self._X_BF
+        p_BF_W = np.einsum("nij,nj->ni", R_WB, X_BF[:, :, 3])
+        V[:, 3:] += np.cross(V[:, :3], p_BF_W)
+        X[:, :, 3] += p_BF_W
+        X[:, :, :3] = R_WB @ X_BF[:, :, :3]
+        poses[:4], velocities[:4] = X.tolist(), V.tolist()

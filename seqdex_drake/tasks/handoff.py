@@ -17,6 +17,7 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from seqdex_drake.modeling.blocks import BLOCK_SPECS
 from seqdex_drake.robots.allegro import ALLEGRO_Q_MAX, ALLEGRO_Q_MIN, PALM_BODY, unscale_limits_to_action
 from seqdex_drake.scene.grasping import ExecuteGrasp, PlanTripodPickup, RampTargets, SolveTripodGrasp
+from seqdex_drake.systems.observations import floats
 
 #: Where Insert's scripted pickup takes the block from: the free table area beside the baseplate.
 PICKUP_XY = np.array([0.22, 0.12])
@@ -37,7 +38,7 @@ class EnvHarness:
 
     def set_targets(self, arm_q=None, hand_q=None) -> None:
         arm = self.env._arm_target if arm_q is None else np.asarray(arm_q, dtype=float)
-        hand = self.env._hand_target if hand_q is None else np.asarray(hand_q, dtype=float)
+        hand = self.env._hand_target if hand_q is None else floats(np.asarray(hand_q, dtype=float))
         self.env._hand_target = hand
         self.env._set_sources(arm, hand, self.env._previous_action)
 

@@ -45,8 +45,13 @@ class RewardWeights:
 
 def penalties(weights: RewardWeights, action: np.ndarray, hand_torque: np.ndarray) -> dict[str, float]:
     """The action and torque penalty terms shared by every sub-task."""
-    return {"action_penalty": weights.action * float(np.dot(action, action)),
-            "torque_penalty": weights.torque * float(np.dot(hand_torque, hand_torque))}
+    return {"action_penalty": weights.action * _squared_norm(action),
+            "torque_penalty": weights.torque * _squared_norm(hand_torque)}
+
+
+def _squared_norm(v) -> float:
+    """||v||^2 of a short vector (array or list), in float arithmetic (see ``observations.floats``)."""
+    return sum(x * x for x in floats(v))
 
 
 def fingertip_term(weights: RewardWeights, fingertip_distance: float) -> float:
