@@ -8,6 +8,7 @@ with the palm orientation held (as the release does). Observation: the paper's t
 """
 
 import dataclasses
+import functools
 import math
 
 import gymnasium as gym
@@ -63,6 +64,13 @@ COMMAND_SIZE = 14 + 32 + ACTION_SIZE
 _HAND_LOW, _HAND_RANGE = ALLEGRO_Q_MIN.tolist(), (ALLEGRO_Q_MAX - ALLEGRO_Q_MIN).tolist()
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 _P_PALM_CENTRE = floats(p_PalmPc_Palm)
+_ZEROS_7, _ZEROS_16 = [0.0] * 7, [0.0] * 16
+
+
+@functools.cache
+def _reward_key(term: str) -> str:
+    """The ``info`` key of a reward term."""
+    return f"reward/{term}"
 
 
 class SubtaskEnv(gym.Env):
@@ -156,14 +164,15 @@ class SubtaskEnv(gym.Env):
     def object_position(self) -> np.ndarray:
         """World position of the target object's centre of mass (within a step, from the step's observation)."""
         if self._step_values is not None:
-            if "object_position" not in self._step_memo:
-                self._step_memo["object_position"] = np.array(self._object_point())
-            return self._step_memo["object_position"]
+            return np.array(self._object_point())
         return self.object_pose().multiply(self._p_OOcm)
 
     def _object_point(self) -> list[float]:
-        """:meth:`object_position` within a step, as floats."""
-        return point_in_world_values(self._step_values[OBJECT_POSE], self._p_OOcm_values)
+        """:meth:`object_position` within a step, as floats (computed once a step)."""
+        if "object_point" not in self._step_memo:
+            self._step_memo["object_point"] = point_in_world_values(self._step_values[OBJECT_POSE],
+                                                                    self._p_OOcm_values)
+        return self._step_memo["object_point"]
 
     def hand_points(self) -> np.ndarray:
         """(5, 3) world positions of the four fingertips (index, middle, ring, thumb) and the palm centre, as
@@ -202,7 +211,7 @@ class SubtaskEnv(gym.Env):
         self.plant.SetVelocities(self.plant_context, self.arm, np.zeros(7))
         self.plant.SetVelocities(self.plant_context, self.hand, np.zeros(16))
         self._hand_target = floats(np.asarray(hand_q, dtype=float))
-        self._set_sources(arm_q, self._hand_target, [0.0] * ACTION_SIZE)
+        self._set_sources(floats(np.asarray(arm_q, dtype=float)), self._hand_target, [0.0] * ACTION_SIZE)
 
     def hover_arm(self, p_WT: np.ndarray) -> np.ndarray:
         """Arm positions placing the hand centre ``hover_height`` above target point ``p_WT``, palm down."""
@@ -240,7 +249,9 @@ class SubtaskEnv(gym.Env):
         self.objects.set_state(self.context, state.objects)
         self.set_target(state.target_object, state.goal)
         self._hand_target = floats(np.asarray(state.hand_target, dtype=float))
-        self._set_sources(state.arm_target, self._hand_target, state.previous_action, state.arm_velocity_target)
+        self._set_sources(*(floats(np.asarray(v, dtype=float)) for v in (state.arm_target, state.hand_target,
+                                                                           state.previous_action,
+                                                                           state.arm_velocity_target)))
         self.refresh_sampled_outputs()
 
     def refresh_sampled_outputs(self) -> None:
@@ -248,14 +259,23 @@ class SubtaskEnv(gym.Env):
         as the next step would: call after editing the state without a step (reset and restore do)."""
         self._scratch = RefreshSampledOutputs(self.plant, self.plant_context, self._scratch)
 
-    def _set_sources(self, arm_q, hand_q, previous_action, arm_v=None) -> None:
+    def _set_sources(self, arm_q: list[float], hand_q: list[float], previous_action: list[float],
+                     arm_v: list[float] | None = None) -> None:
         """Writes the command source: the arm's and the hand's desired states [q, v] (the hand's v is 0) and the
-        previous action (arrays or lists; kept as lists of floats)."""
-        command = [*floats(arm_q), *([0.0] * 7 if arm_v is None else floats(arm_v)), *floats(hand_q),
-                   *[0.0] * 16, *floats(previous_action)]
+        previous action, each a list of floats (as the env keeps them)."""
+        command = arm_q + (_ZEROS_7 if arm_v is None else arm_v) + hand_q + _ZEROS_16 + previous_action
+        if len(command) != COMMAND_SIZE:
+            raise ValueError(f"the env's command must have {COMMAND_SIZE} entries, got {len(command)}")
         self._command_source.get_mutable_source_value(self._command_context).SetFromVector(np.array(command))
         self._arm_target, self._arm_velocity_target = command[:7], command[7:14]
         self._previous_action = command[46:]
+
+    def observation_values(self) -> list[float]:
+        """:meth:`raw_observation` as a list of floats, for float arithmetic on a few entries. Within a step the
+        step's own list (read it, do not modify it)."""
+        if self._step_values is not None:
+            return self._step_values
+        return self.raw_observation().tolist()
 
     def raw_observation(self) -> np.ndarray:
         """The assembled observation (float64, before any observation noise).
@@ -271,13 +291,14 @@ class SubtaskEnv(gym.Env):
             return self._step_memo["raw_observation"]
         return self.assembler.get_output_port().Eval(self._assembler_context)
 
-    def _assemble_values(self) -> list[float]:
+    def _assemble_values(self, plant_state: list[float] | None = None) -> list[float]:
         """The observation port's value as floats, computed on the plant's own context from the values the
         port's inputs carry (the same numbers; without copying the state into the assembler's context and
-        computing the kinematics there too)."""
+        computing the kinematics there too). ``plant_state``: the plant's [q, v] as floats, if at hand."""
         image = None if self._label_port is None else self._label_port.Eval(self._station_context)
         return self.assembler.assemble_values(self._plant_context, self._observation_target, self._previous_action,
-                                              self._hand_torque_port.Eval(self._station_context), image)
+                                              self._hand_torque_port.Eval(self._station_context), image,
+                                              plant_state)
 
     def observation(self) -> np.ndarray:
         return self.raw_observation().astype(np.float32)
@@ -319,7 +340,7 @@ class SubtaskEnv(gym.Env):
             self._hand_target = target if ema == 1.0 else [ema * t + (1 - ema) * h
                                                            for t, h in zip(target, self._hand_target, strict=True)]
         else:
-            a[:16] = [0.0] * 16  # Ignored; zeroed so the previous-action observation does not carry them.
+            a[:16] = _ZEROS_16  # Ignored; zeroed so the previous-action observation does not carry them.
         # Integrate the wrist command from the previous *target*, not the measured arm: with a payload the
         # PD controller sags a little, and re-targeting from the measurement would turn that sag into drift.
         (cx, cy, cz), step = self.ik.palm_point(self._arm_target), self.config.wrist_step
@@ -333,7 +354,8 @@ class SubtaskEnv(gym.Env):
         info = {"nan_action": False, "simulator_error": False}
         try:
             self.simulator.AdvanceTo(self.context.get_time() + period)
-            values = self._assemble_values()
+            x = self.plant.GetPositionsAndVelocities(self._plant_context).tolist()
+            values = self._assemble_values(x)
         except RuntimeError as error:  # A failed contact solve, NaN state, ...: a truncation.
             info.update(simulator_error=True, error=str(error), success=False)
             return np.zeros(self.observation_space.shape, np.float32), 0.0, False, True, info
@@ -346,12 +368,12 @@ class SubtaskEnv(gym.Env):
         self._step_values = values  # What the readers below see (raw_observation() etc.) until the step ends.
         try:
             terms = self.task.reward_terms(self, np.array(a))  # The action as applied (noised, clipped).
-            info.update({f"reward/{k}": v for k, v in terms.items()})
+            info.update({_reward_key(k): v for k, v in terms.items()})
             info["success"] = bool(self.task.is_success(self))
             terminated = bool(self.task.is_failure(self))
             # Last, as it moves nothing the observation, reward or success test shows (a freeze edits collision
             # filters and masses only).
-            self.objects.update(self.context, self._hand_point_values(values))
+            self.objects.update(self.context, self._hand_point_values(values), x)
         finally:
             self._step_values, self._step_memo = None, {}
         truncated = self._steps >= self.config.episode_length

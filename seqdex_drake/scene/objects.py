@@ -249,7 +249,9 @@ class SceneObjects:
             d2 = math.inf  # Squared distance to the nearest hand point.
             for hx, hy, hz in hand:
                 dx, dy, dz = px - hx, py - hy, pz - hz
-                d2 = min(d2, dx * dx + dy * dy + dz * dz)
+                e2 = dx * dx + dy * dy + dz * dz
+                if e2 < d2:
+                    d2 = e2
             if is_frozen:
                 ticks[i] = 0
                 if d2 < wake_radius2:

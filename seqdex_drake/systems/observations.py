@@ -234,8 +234,9 @@ class ObservationAssembler(LeafSystem):
         return np.array(self.assemble_values(plant_context, target, previous_action, net_actuation, label_image))
 
     def assemble_values(self, plant_context, target: ObservationTarget, previous_action, net_actuation,
-                        label_image=None) -> list[float]:
+                        label_image=None, plant_state: list[float] | None = None) -> list[float]:
         """:meth:`assemble` as a list of floats (what ``SubtaskEnv.step`` reads back in float arithmetic).
+        ``plant_state``: the plant's [q, v] in ``plant_context`` as a list of floats, where the caller has it.
 
         Built in plain Python from a handful of Drake calls and ``tolist()`` conversions: right after a
         physics step this code runs with the caches cold, where every distinct numpy function costs several
@@ -243,7 +244,7 @@ class ObservationAssembler(LeafSystem):
         if target.object_body not in self._bodies:
             raise RuntimeError("ObservationAssembler: no target object set; call set_target() at reset")
         plant = self._plant
-        x = plant.GetPositionsAndVelocities(plant_context).tolist()
+        x = plant.GetPositionsAndVelocities(plant_context).tolist() if plant_state is None else plant_state
         values = [x[i] for i in self._joint_index]
         # The 4 fingertip frames, the palm and the object, one 13-row each: pose (7), linear, angular velocity.
         bodies = (*self._tip_bodies, self._palm, self._bodies[target.object_body])

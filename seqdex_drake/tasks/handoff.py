@@ -37,7 +37,7 @@ class EnvHarness:
         self.scenario = env.scenario
 
     def set_targets(self, arm_q=None, hand_q=None) -> None:
-        arm = self.env._arm_target if arm_q is None else np.asarray(arm_q, dtype=float)
+        arm = self.env._arm_target if arm_q is None else floats(np.asarray(arm_q, dtype=float))
         hand = self.env._hand_target if hand_q is None else floats(np.asarray(hand_q, dtype=float))
         self.env._hand_target = hand
         self.env._set_sources(arm, hand, self.env._previous_action)

@@ -12,7 +12,7 @@ import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw
 
 from seqdex_drake.modeling.blocks import BLOCK_SPECS, STUD_PITCH
-from seqdex_drake.systems.observations import OBJECT_QUATERNION, pose_vector, quat_multiply
+from seqdex_drake.systems.observations import OBJECT_QUATERNION, floats, pose_vector, quat_product
 from seqdex_drake.tasks.base import Task, TaskConfig
 from seqdex_drake.tasks.blocks_common import block_name
 from seqdex_drake.tasks.handoff import scripted_block_pickup
@@ -23,7 +23,7 @@ PLATE_XY = np.array([0.25, -0.23])
 BASEPLATE_TOP = 0.618
 LAYER_HEIGHT = 0.0375
 PLATE_CELLS = 4
-YAW_FLIP = np.array([0.0, 0.0, 0.0, 1.0])  # Quaternion [w, x, y, z] of a 180 deg turn about z.
+YAW_FLIP = (0.0, 0.0, 0.0, 1.0)  # Quaternion [w, x, y, z] of a 180 deg turn about z.
 
 
 def default_config() -> TaskConfig:
@@ -46,9 +46,9 @@ def goal_pose(block_type: int, layers: int, cell: tuple[int, int], yaw: float) -
 
 def block_goal_errors(env) -> tuple[float, float]:
     """Position (m) and rotation (rad) errors of the block's origin frame to the goal, yaw-flip symmetric."""
-    observation = env.raw_observation()
+    observation = env.observation_values()
     position, rotation = goal_errors(observation)
-    flipped = quaternion_angle(observation[OBJECT_QUATERNION], quat_multiply(env.goal[3:], YAW_FLIP))
+    flipped = quaternion_angle(observation[OBJECT_QUATERNION], quat_product(floats(env.goal[3:]), YAW_FLIP))
     return position, min(rotation, flipped)
 
 

@@ -13,12 +13,13 @@ beyond it.
 
 import dataclasses
 import math
+import operator
 
 import numpy as np
 
 from seqdex_drake.systems.observations import GOAL_POSITION_ERROR, GOAL_ROTATION_ERROR, floats
 
-_IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+_IDENTITY = [1.0, 0.0, 0.0, 0.0]
 
 
 @dataclasses.dataclass
@@ -51,7 +52,8 @@ def penalties(weights: RewardWeights, action: np.ndarray, hand_torque: np.ndarra
 
 def _squared_norm(v) -> float:
     """||v||^2 of a short vector (array or list), in float arithmetic (see ``observations.floats``)."""
-    return sum(x * x for x in floats(v))
+    v = floats(v)
+    return sum(map(operator.mul, v, v))
 
 
 def fingertip_term(weights: RewardWeights, fingertip_distance: float) -> float:
@@ -70,11 +72,12 @@ def quaternion_angle(q_a: np.ndarray, q_b: np.ndarray) -> float:
     return 2.0 * math.asin(min(math.sqrt(x * x + y * y + z * z), 1.0))
 
 
-def goal_errors(observation: np.ndarray) -> tuple[float, float]:
+def goal_errors(observation) -> tuple[float, float]:
     """Position (m) and rotation (rad) errors of the object's origin frame to the goal, from the goal part of an
-    observation (Insert, tool Reorient: goal - position, goal * conj(object quaternion))."""
-    position = observation[GOAL_POSITION_ERROR]
-    return math.sqrt(float(position @ position)), quaternion_angle(observation[GOAL_ROTATION_ERROR], _IDENTITY)
+    observation (an array or ``SubtaskEnv.observation_values()``; Insert, tool Reorient: goal - position,
+    goal * conj(object quaternion))."""
+    x, y, z = floats(observation[GOAL_POSITION_ERROR])
+    return math.sqrt(x * x + y * y + z * z), quaternion_angle(observation[GOAL_ROTATION_ERROR], _IDENTITY)
 
 
 def search_reward(weights, target_pixels, fingertip_distance, action, hand_torque) -> dict[str, float]:

@@ -51,7 +51,7 @@ class SearchTask(Task):
         env.set_robot(env.hover_arm(p_top), ALLEGRO_OPEN_Q)
 
     def target_pixels(self, env) -> float:
-        return float(env.observation()[-1])
+        return float(env.observation_values()[-1])
 
     def reward_terms(self, env, action):
         return search_reward(self.config.reward, self.target_pixels(env), env.fingertip_distance(), action,

@@ -35,5 +35,5 @@ class ToolGraspTask(Task):
 
     def is_success(self, env) -> bool:
         lift, angle = self.config.success_threshold
-        turned = quaternion_angle(env.raw_observation()[OBJECT_QUATERNION], self.start_quaternion)
+        turned = quaternion_angle(env.observation_values()[OBJECT_QUATERNION], self.start_quaternion)
         return env.object_position()[2] - self.start_height > lift and turned < angle

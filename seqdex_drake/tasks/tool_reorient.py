@@ -50,9 +50,9 @@ class ToolReorientTask(Task):
         env.set_target(env.target_object, pose_vector(goal))
 
     def reward_terms(self, env, action):
-        position, rotation = goal_errors(env.raw_observation())
+        position, rotation = goal_errors(env.observation_values())
         return goal_reward(self.config.reward, position, rotation, env.fingertip_distance(), action,
                            env.hand_torque())
 
     def is_success(self, env) -> bool:
-        return goal_errors(env.raw_observation())[1] < self.config.success_threshold[0]
+        return goal_errors(env.observation_values())[1] < self.config.success_threshold[0]
