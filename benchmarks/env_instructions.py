@@ -1,4 +1,5 @@
-"""The env's own cost per step in CPU instructions, counted by Valgrind's callgrind: a figure that does not drift.
+"""The env's own cost per step in CPU instructions and cache misses, counted by Valgrind's callgrind: figures that
+do not drift.
 
 ``env_throughput.py`` times env / raw, but on a shared machine single tasks move by several per cent between
 runs. Instruction counts do not: per sub-task, the env is reset (seed 0), stepped a few times, and then
@@ -7,14 +8,21 @@ runs. Instruction counts do not: per sub-task, the env is reset (seed 0), steppe
 the reward and success test, the wake check, Python and pybind glue). ``outside_fraction`` = outside / total is
 what the env's code adds in instructions. It is not the time it adds: that code runs right after the physics,
 with its code and data evicted from the caches, at a fraction of the physics' instructions per cycle (see the
-README's "Where the env time goes"). The counts exclude what switching the counting on and off costs (an
-empty window, measured first).
+README's "Where the env time goes"). So callgrind also simulates the caches, with a last level the size of this
+machine's per-core L2 (``--LL``, 512 KB, 8-way; L1 32 KB each): ``outside_l2_misses`` counts the lines the
+env's code (instructions and data) brings in from beyond that L2 per step, most of them lines the physics evicted
+(``outside_l2_instruction_misses`` of them code). That, not the instruction count, is what cold env code costs in
+time, ~100-300 cycles a line; an estimate that weighs each by 100 cycles is ``outside_cycles_estimate`` (each L1
+miss 10, each instruction 1). The counts exclude what switching the counting on and off costs (an empty window,
+measured first).
 
 The script runs itself under ``valgrind --tool=callgrind`` with instrumentation off, switches it on around each
 task's counted steps (``callgrind_control``), dumps one profile per task and reads the totals with
 ``callgrind_annotate``. It needs Valgrind (``apt install valgrind``) and is slow: ~1 min to start, then about
-50x the steps' run time. The last line is one JSON object with ``per_step`` (per task: ``total``,
-``advance_to``, ``outside``, ``outside_fraction``) and ``outside_min`` / ``outside_max`` over the tasks.
+100x the steps' run time. The last line is one JSON object with ``per_step`` (per task: ``total``,
+``advance_to``, ``outside``, ``outside_fraction``, ``outside_l1_misses``, ``outside_l2_misses``,
+``outside_l2_instruction_misses``, ``outside_cycles_estimate``) and ``outside_min`` / ``outside_max`` (of
+``outside_fraction``) over the tasks.
 
     python benchmarks/env_instructions.py [--tasks grasp tool_grasp ...] [--steps 10] [--test]
 """
@@ -52,6 +60,7 @@ def _child(tasks: list[str], steps: int) -> None:
         action = np.zeros(env.action_space.shape)
         for _ in range(WARMUP_STEPS):
             env.step(action)
+        control("--zero")  # Each dump from zero (with the cache simulation, later dumps' totals come out wrong).
         control("--instr=on")
         for _ in range(steps):
             env.step(action)
@@ -59,17 +68,43 @@ def _child(tasks: list[str], steps: int) -> None:
         control("--instr=off")
 
 
-def _counts(profile: str) -> tuple[int, int]:
-    """(total instructions, instructions inside Simulator::AdvanceTo) of one callgrind dump."""
-    with open(profile) as f:
-        total = next(int(line.split()[1]) for line in f if line.startswith("totals:"))
+EVENTS = ("Ir", "I1mr", "D1mr", "D1mw", "ILmr", "DLmr", "DLmw")
+"""Callgrind's events with ``--cache-sim=yes``: instructions, L1 misses (instruction, data read, data write) and
+last-level misses (the same three)."""
+CACHES = ("--I1=32768,8,64", "--D1=32768,8,64", "--LL=524288,8,64")
+"""The simulated caches: 32 KB L1s and, as the last level, the 512 KB per-core L2 of the development machine."""
+
+
+def _counts(profile: str) -> tuple[dict, dict]:
+    """({event: total}, {event: inside Simulator::AdvanceTo}) of one callgrind dump."""
     report = subprocess.run(["callgrind_annotate", "--inclusive=yes", "--threshold=100", profile],
                             capture_output=True, text=True, check=True).stdout
-    inside = [int(m.group(1).replace(",", "")) for line in report.splitlines()
-              if ADVANCE_TO in line and (m := re.match(r"\s*([\d,]+)", line))]
-    if not inside:
+    header = next((line.split(":", 1)[1].split() for line in report.splitlines()
+                   if line.startswith("Events shown:")), None)
+    if header is None or any(event not in header for event in EVENTS):
+        raise RuntimeError(f"callgrind_annotate shows no {EVENTS} for {profile}: was the cache simulated?")
+
+    def values(line: str) -> dict:
+        cells = re.findall(r"(?:([\d,]+) \(\s*[\d.]+%\)|(\.))", line)  # "1,234 (5.6%)" or "." (zero).
+        numbers = [int(a.replace(",", "")) if a else 0 for a, _ in cells]
+        return dict(zip(header, numbers, strict=False))
+
+    totals = next((values(line) for line in report.splitlines() if "PROGRAM TOTALS" in line), None)
+    inside = [values(line) for line in report.splitlines() if ADVANCE_TO in line]
+    if totals is None or not inside:
         raise RuntimeError(f"no {ADVANCE_TO} in {profile}: was the env stepped?")
-    return total, max(inside)
+    return totals, max(inside, key=lambda v: v["Ir"])
+
+
+def _outside(totals: dict, inside: dict, switching: dict, steps: int) -> dict:
+    """Per step: instructions (total, inside AdvanceTo, outside) and the outside part's cache misses."""
+    out = {e: (totals[e] - switching.get(e, 0) - inside[e]) / steps for e in EVENTS}
+    total = (totals["Ir"] - switching.get("Ir", 0)) / steps
+    l1, l2 = out["I1mr"] + out["D1mr"] + out["D1mw"], out["ILmr"] + out["DLmr"] + out["DLmw"]
+    return {"total": round(total), "advance_to": round(inside["Ir"] / steps), "outside": round(out["Ir"]),
+            "outside_fraction": round(out["Ir"] / total, 4), "outside_l1_misses": round(l1),
+            "outside_l2_misses": round(l2), "outside_l2_instruction_misses": round(out["ILmr"]),
+            "outside_cycles_estimate": round(out["Ir"] + 10 * l1 + 100 * l2)}
 
 
 def main(argv=None):
@@ -97,7 +132,8 @@ def main(argv=None):
         sys.exit(f"env_instructions.py needs Valgrind's {', '.join(missing)}: install valgrind "
                  "(e.g. apt install valgrind) and run it again")
     with tempfile.TemporaryDirectory() as out:
-        command = ["valgrind", "--tool=callgrind", "--instr-atstart=no", f"--callgrind-out-file={out}/cg",
+        command = ["valgrind", "--tool=callgrind", "--instr-atstart=no", "--cache-sim=yes", *CACHES,
+                   f"--callgrind-out-file={out}/cg",
                    sys.executable, os.path.abspath(__file__), "--child", "--steps", str(args.steps), "--tasks", *tasks]
         done = subprocess.run(command, capture_output=True, text=True, env=dict(os.environ, OMP_NUM_THREADS="1"))
         if done.returncode != 0:
@@ -112,17 +148,19 @@ def main(argv=None):
         if CALIBRATION not in dumps:
             sys.exit("no calibration profile was dumped")
         with open(dumps[CALIBRATION]) as f:
-            switching = next(int(line.split()[1]) for line in f if line.startswith("totals:"))
+            events, totals = None, None
+            for line in f:
+                if line.startswith("events:"):
+                    events = line.split()[1:]
+                elif line.startswith("totals:"):
+                    totals = [int(x) for x in line.split()[1:]]
+            switching = dict(zip(events or (), totals or (), strict=False))
         per_step = {}
         for name in tasks:
             if name not in dumps:
                 sys.exit(f"no profile was dumped for {name}")
-            total, inside = _counts(dumps[name])
-            total -= switching
-            per_step[name] = {"total": round(total / args.steps), "advance_to": round(inside / args.steps),
-                              "outside": round((total - inside) / args.steps),
-                              "outside_fraction": round((total - inside) / total, 4)}
-            print(f"{name:14s} instructions per env step {per_step[name]}", flush=True)
+            per_step[name] = _outside(*_counts(dumps[name]), switching, args.steps)
+            print(f"{name:14s} per env step {per_step[name]}", flush=True)
     fractions = [r["outside_fraction"] for r in per_step.values()]
     print(json.dumps({"per_step": per_step, "steps": args.steps, "outside_min": min(fractions),
                       "outside_max": max(fractions), "args": vars(args)}))

@@ -61,3 +61,6 @@ def test_env_instructions_splits_the_step_into_physics_and_env_code():
     assert 0 < counts["outside"] < counts["advance_to"]
     assert abs(counts["total"] - counts["advance_to"] - counts["outside"]) <= 1  # Each rounded per step.
     assert 0 < counts["outside_fraction"] < 0.5 and result["outside_min"] == counts["outside_fraction"]
+    # The simulated caches: every last-level (L2-sized) miss is an L1 miss first; some of them are code.
+    assert 0 < counts["outside_l2_instruction_misses"] < counts["outside_l2_misses"] <= counts["outside_l1_misses"]
+    assert counts["outside_cycles_estimate"] > counts["outside"]

@@ -74,6 +74,30 @@ def test_hand_points_and_fingertip_distance_agree_with_the_plant(env):
     assert env.fingertip_distance() == pytest.approx(np.linalg.norm(expected[:4] - com, axis=1).sum(), abs=1e-12)
 
 
+def test_the_helpers_read_the_same_state_inside_a_step(env):
+    """Within a step the tasks read the step's own observation as floats (``observation_values``) and the
+    helpers derived from it; they must match what the same helpers compute from the plant after the step."""
+    seen = {}
+    is_success = env.task.is_success
+
+    def spy(e):
+        seen.update(values=list(e.observation_values()), raw=e.raw_observation().copy(), points=e.hand_points(),
+                    position=e.object_position(), distance=e.fingertip_distance(), torque=e.hand_torque())
+        return is_success(e)
+
+    env.task.is_success = spy
+    try:
+        env.step(np.random.default_rng(3).uniform(-1, 1, 19))
+    finally:
+        del env.task.is_success
+    np.testing.assert_array_equal(seen["values"], seen["raw"])
+    np.testing.assert_array_equal(seen["raw"], env.raw_observation())  # The port's value, after the step.
+    np.testing.assert_allclose(seen["points"], env.objects.hand_points(env.context), atol=1e-12)
+    np.testing.assert_allclose(seen["position"], env.object_position(), atol=1e-12)
+    assert seen["distance"] == pytest.approx(env.fingertip_distance(), abs=1e-12)
+    np.testing.assert_array_equal(seen["torque"], env.hand_torque())
+
+
 def test_goal_errors_read_from_the_observation_match_the_pose(env):
     pose, goal = pose_vector(env.object_pose()), env.goal
     position, rotation = goal_errors(env.raw_observation())

@@ -32,7 +32,7 @@ from seqdex_drake.systems.observations import (
     ObservationAssembler,
     ObservationTarget,
     floats,
-    point_in_world_values,
+    point_in_world,
 )
 from seqdex_drake.tasks.base import Task, TaskConfig
 
@@ -170,7 +170,7 @@ class SubtaskEnv(gym.Env):
     def _object_point(self) -> list[float]:
         """:meth:`object_position` within a step, as floats (computed once a step)."""
         if "object_point" not in self._step_memo:
-            self._step_memo["object_point"] = point_in_world_values(self._step_values[OBJECT_POSE],
+            self._step_memo["object_point"] = point_in_world(self._step_values[OBJECT_POSE],
                                                                     self._p_OOcm_values)
         return self._step_memo["object_point"]
 
@@ -183,7 +183,7 @@ class SubtaskEnv(gym.Env):
     def _hand_point_values(observation: list[float]) -> list[list[float]]:
         """:meth:`hand_points` of an observation given as floats, as rows of floats."""
         tips = observation[FINGERTIPS]
-        return [tips[k:k + 3] for k in range(0, 52, 13)] + [point_in_world_values(observation[PALM_POSE],
+        return [tips[k:k + 3] for k in range(0, 52, 13)] + [point_in_world(observation[PALM_POSE],
                                                                                    _P_PALM_CENTRE)]
 
     def fingertip_distance(self) -> float:

@@ -52,7 +52,7 @@ class ObservationTarget:
 
 #: Parts of an observation that the env and the tasks read back (indices as in the table above).
 FINGERTIPS = slice(46, 98)
-"""The 4 fingertip rows of 13 (pose, linear, angular velocity): ``fingertip_positions`` takes their positions."""
+"""The 4 fingertip rows of 13 (pose, linear, angular velocity)."""
 PALM_POSE = slice(98, 105)
 """The palm (hand base) pose [x, y, z, qw, qx, qy, qz]."""
 OBJECT_POSE = slice(111, 118)
@@ -67,26 +67,16 @@ GOAL_ROTATION_ERROR = slice(169, 173)
 """Goal quaternion * conj(object quaternion) (Insert, tool Reorient)."""
 
 
-def fingertip_positions(observation: np.ndarray) -> np.ndarray:
-    """(4, 3) world positions of the fingertips (index, middle, ring, thumb) in an observation."""
-    return observation[FINGERTIPS].reshape(4, 13)[:, :3]
-
-
 def floats(v) -> list[float]:
     """The entries of a short vector (array, list or tuple) as Python floats, for plain float arithmetic:
     numpy's per-call overhead would be most of the cost of three- and four-element maths, run every env step."""
     return v.tolist() if isinstance(v, np.ndarray) else [float(x) for x in v]
 
 
-def point_in_world(pose: np.ndarray, p_BQ: np.ndarray) -> np.ndarray:
-    """p_WQ of a point Q fixed in a body B, from B's pose [x, y, z, qw, qx, qy, qz] (e.g. the observation's
-    ``PALM_POSE``)."""
-    return np.array(point_in_world_values(floats(pose), floats(p_BQ)))
-
-
-def point_in_world_values(pose: list[float], p_BQ: list[float]) -> list[float]:
-    """:func:`point_in_world` on lists of floats: p_WB + R(q) p_BQ, with R(q) v = v + 2 w (u x v) + 2 u x (u x v)
-    for q = [w, u], in float arithmetic."""
+def point_in_world(pose: list[float], p_BQ: list[float]) -> list[float]:
+    """p_WQ of a point Q fixed in a body B, from B's pose [x, y, z, qw, qx, qy, qz] (e.g. an observation's
+    ``PALM_POSE`` entries), as floats: p_WB + R(q) p_BQ, with R(q) v = v + 2 w (u x v) + 2 u x (u x v) for
+    q = [w, u], in float arithmetic."""
     x, y, z, w, ux, uy, uz = pose
     vx, vy, vz = p_BQ
     tx, ty, tz = 2.0 * (uy * vz - uz * vy), 2.0 * (uz * vx - ux * vz), 2.0 * (ux * vy - uy * vx)  # 2 u x v
