@@ -158,3 +158,19 @@ def test_reach_clearance_term_follows_the_hand_height():
     height = hand_center(env)[2] - env.object_position()[2]
     expected = 0.5 * np.clip((height - CLEARANCE_LOW) / (CLEARANCE_HIGH - CLEARANCE_LOW), 0.0, 1.0)
     assert 0.0 < expected and info["reward/clearance"] == pytest.approx(expected)
+
+
+def test_orient_success_is_the_block_standing_upright():
+    """Orient's success test (the block's z axis within acos(0.6) of world z), read from the observation's
+    quaternion, on constructed states: upright, tilted just inside and just outside the threshold, on its side."""
+    from pydrake.math import RigidTransform, RollPitchYaw
+
+    env = make_env("orient")
+    env.reset(seed=0)
+    p_WB = env.object_pose().translation()
+    threshold = env.config.success_threshold[0]
+    tilt = np.arccos(threshold)
+    for roll, expected in ((0.0, True), (tilt - 0.01, True), (tilt + 0.01, False), (np.pi / 2, False)):
+        env.plant.SetFreeBodyPose(env.plant_context, env.object_body(), RigidTransform(RollPitchYaw(roll, 0, 0), p_WB))
+        assert env.object_pose().rotation().matrix()[2, 2] == pytest.approx(np.cos(roll))
+        assert env.task.is_success(env) is expected, roll
