@@ -248,10 +248,10 @@ class SubtaskEnv(gym.Env):
         self.plant.SetVelocities(self.plant_context, state.plant_velocities)
         self.objects.set_state(self.context, state.objects)
         self.set_target(state.target_object, state.goal)
-        self._hand_target = floats(np.asarray(state.hand_target, dtype=float))
-        self._set_sources(*(floats(np.asarray(v, dtype=float)) for v in (state.arm_target, state.hand_target,
-                                                                           state.previous_action,
-                                                                           state.arm_velocity_target)))
+        arm, hand, previous, arm_v = (floats(np.asarray(v, dtype=float)) for v in (
+            state.arm_target, state.hand_target, state.previous_action, state.arm_velocity_target))
+        self._hand_target = hand
+        self._set_sources(arm, hand, previous, arm_v)
         self.refresh_sampled_outputs()
 
     def refresh_sampled_outputs(self) -> None:
