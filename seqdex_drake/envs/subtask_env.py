@@ -34,6 +34,7 @@ from seqdex_drake.systems.observations import (
     floats,
     point_in_world,
 )
+from seqdex_drake.systems.target_pixels import TargetPixelCounter
 from seqdex_drake.tasks.base import Task, TaskConfig
 
 
@@ -97,13 +98,13 @@ class SubtaskEnv(gym.Env):
         builder.Connect(self._command_source.get_output_port(), split.get_input_port())
         builder.Connect(split.get_output_port(0), station.GetInputPort("franka.desired_state"))
         builder.Connect(split.get_output_port(1), station.GetInputPort("allegro.desired_state"))
-        assembler = builder.AddNamedSystem("observation", ObservationAssembler(self.plant, task.goal, task.pixels))
-        for name in ("plant_state", "allegro.net_actuation"):
+        # Search's target pixels: its camera's label image, rendered over the target's region only.
+        pixels = task.pixels and TargetPixelCounter.from_sensor(
+            station.GetSubsystemByName(f"camera_{next(iter(self.scenario.cameras))}"))
+        assembler = builder.AddNamedSystem("observation", ObservationAssembler(self.plant, task.goal, pixels))
+        for name in ("plant_state", "allegro.net_actuation") + (("query_object",) if pixels else ()):
             builder.Connect(station.GetOutputPort(name), assembler.GetInputPort(name))
-        if task.pixels:
-            camera = next(iter(self.scenario.cameras))
-            builder.Connect(station.GetOutputPort(f"{camera}.label_image"), assembler.GetInputPort("label_image"))
-        self._label_port = station.GetOutputPort(f"{camera}.label_image") if task.pixels else None
+        self._pixel_port = station.GetOutputPort("query_object") if pixels else None
         builder.Connect(split.get_output_port(2), assembler.GetInputPort("previous_action"))
         self.diagram = builder.Build()
         self.station, self.assembler = station, assembler
@@ -295,9 +296,9 @@ class SubtaskEnv(gym.Env):
         """The observation port's value as floats, computed on the plant's own context from the values the
         port's inputs carry (the same numbers; without copying the state into the assembler's context and
         computing the kinematics there too). ``plant_state``: the plant's [q, v] as floats, if at hand."""
-        image = None if self._label_port is None else self._label_port.Eval(self._station_context)
+        pixel_input = None if self._pixel_port is None else self._pixel_port.Eval(self._station_context)
         return self.assembler.assemble_values(self._plant_context, self._observation_target, self._previous_action,
-                                              self._hand_torque_port.Eval(self._station_context), image,
+                                              self._hand_torque_port.Eval(self._station_context), pixel_input,
                                               plant_state)
 
     def observation(self) -> np.ndarray:
