@@ -64,9 +64,10 @@ class SceneObjects:
         self._last_speed = [0.0] * len(self.names)
         hand = self.plant.GetModelInstanceByName("allegro")
         self._tip_frames = [self.plant.GetFrameByName(f, hand) for f in FINGERTIP_FRAMES]
-        self._robot_bodies = set(self.plant.GetBodyIndices(hand)) | set(
-            self.plant.GetBodyIndices(self.plant.GetModelInstanceByName("franka")))
-        self._object_of_body = {body.index(): i for i, body in enumerate(self.bodies)}
+        # Body indices as ints (the contact loop of _touched hashes ints, not BodyIndex objects).
+        self._robot_bodies = {int(b) for b in self.plant.GetBodyIndices(hand)} | {
+            int(b) for b in self.plant.GetBodyIndices(self.plant.GetModelInstanceByName("franka"))}
+        self._object_of_body = {int(body.index()): i for i, body in enumerate(self.bodies)}
         self._palm_frame = self.plant.GetBodyByName(PALM_BODY, hand).body_frame()
         self._last_root: tuple = (None, None, None)  # (root, plant context, freezer context) of the last update.
 
@@ -294,16 +295,18 @@ class SceneObjects:
     def _touched(self, plant_context: Context, frozen: np.ndarray, moving: np.ndarray) -> np.ndarray:
         """Frozen objects in contact with the robot or with a moving object (the current state's contacts).
 
-        The contact results are the plant's sampled outputs (its last step's): reading them costs no solve.
+        The contact results are the plant's sampled outputs (its last step's): reading them costs no solve. The
+        loop runs over every contact (~100 in Search's pile), on Python ints and lists.
         """
-        touched = np.zeros(len(self.names), dtype=bool)
+        touched, is_frozen, is_moving = [False] * len(self.names), frozen.tolist(), moving.tolist()
+        object_of_body, robot = self._object_of_body, self._robot_bodies
         results = self.plant.get_contact_results_output_port().Eval(plant_context)
         for k in range(results.num_point_pair_contacts()):
             info = results.point_pair_contact_info(k)
-            a, b = self._object_of_body.get(info.bodyA_index()), self._object_of_body.get(info.bodyB_index())
-            for mine, other, other_body in ((a, b, info.bodyB_index()), (b, a, info.bodyA_index())):
-                if mine is None or not frozen[mine]:
-                    continue
-                if (other is not None and moving[other]) or other_body in self._robot_bodies:
-                    touched[mine] = True
-        return touched
+            body_a, body_b = int(info.bodyA_index()), int(info.bodyB_index())
+            a, b = object_of_body.get(body_a), object_of_body.get(body_b)
+            if a is not None and is_frozen[a] and ((b is not None and is_moving[b]) or body_b in robot):
+                touched[a] = True
+            if b is not None and is_frozen[b] and ((a is not None and is_moving[a]) or body_a in robot):
+                touched[b] = True
+        return np.array(touched)
