@@ -2,8 +2,10 @@
 
 The release drives the arm by Cartesian deltas through damped least-squares IK (damping 0.05) with a
 palm-down target orientation (FACTS.md); :class:`PalmIK` does the same on the controller plant (the Franka
-with the Allegro welded and frozen). One :meth:`PalmIK.step` is the per-control-tick wrist controller of the
-sub-task environments; :meth:`PalmIK.solve` iterates it to place the hand at reset.
+with the Allegro welded and frozen), whose palm pose and Jacobian it evaluates in float arithmetic
+(:class:`~seqdex_drake.robots.chain_kinematics.SerialChainKinematics`, read off that plant). One
+:meth:`PalmIK.step` is the per-control-tick wrist controller of the sub-task environments; :meth:`PalmIK.solve`
+iterates it to place the hand at reset.
 """
 
 import math
@@ -11,10 +13,10 @@ import math
 import numpy as np
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.plant import MultibodyPlant
-from pydrake.multibody.tree import JacobianWrtVariable
 from scipy.linalg.lapack import dposv
 
 from seqdex_drake.robots.allegro import PALM_BODY, p_PalmPc_Palm
+from seqdex_drake.robots.chain_kinematics import SerialChainKinematics
 from seqdex_drake.robots.franka import FRANKA_Q_MAX, FRANKA_Q_MIN
 from seqdex_drake.systems.observations import floats
 
@@ -49,23 +51,20 @@ class PalmIK:
         if controller_plant.num_positions() != 7:
             raise ValueError("PalmIK needs the 7-dof controller plant (MakeControllerPlant)")
         self.plant = controller_plant
-        self.context = controller_plant.CreateDefaultContext()
         hand = controller_plant.GetModelInstanceByName("allegro")
         self.palm = controller_plant.GetBodyByName(PALM_BODY, hand).body_frame()
+        self._kinematics = SerialChainKinematics(controller_plant, self.palm)
         self.damping = damping
         self.orientation_weight = orientation_weight
         self.p_PalmC_Palm = np.asarray(p_PalmC_Palm, dtype=float)
-        self._world = controller_plant.world_frame()
         self._damping_eye = (damping, damping**2 * np.eye(6))  # Recomputed if ``damping`` is changed.
         self._target = (None, None)  # (R_WP_target, its matrix) of the last step (the env holds one orientation).
-        self._last = (None, None)  # (q_arm, X_WC rows) of the last pose computed (_pose).
+        self._last = (None, None, None)  # (q_arm, X_WC rows, joint frames) of the last pose computed (_pose).
         self._p_PalmC_Palm = self.p_PalmC_Palm.tolist()
         self._q_min, self._q_max = FRANKA_Q_MIN.tolist(), FRANKA_Q_MAX.tolist()
 
     def palm_pose(self, q_arm: np.ndarray) -> RigidTransform:
-        """X_WC: the controlled point with the palm's orientation, in the world, for arm positions ``q_arm``.
-
-        Leaves ``self.context`` at ``q_arm`` (``step`` evaluates the Jacobian there)."""
+        """X_WC: the controlled point with the palm's orientation, in the world, for arm positions ``q_arm``."""
         X_WC = np.array(self._pose(floats(q_arm)))
         return RigidTransform(RotationMatrix(X_WC[:, :3]), X_WC[:, 3])
 
@@ -82,14 +81,14 @@ class PalmIK:
         """X_WC as three rows [r_i0, r_i1, r_i2, p_i] of floats (read only), computed once for consecutive calls
         with the same ``q_arm`` (a list of floats; the env asks twice a tick). Float arithmetic and lists, as
         the env's step runs this with the caches cold after the physics, where each distinct numpy function
-        costs microseconds."""
+        or Drake call costs microseconds."""
         if q_arm != self._last[0]:
-            self.plant.SetPositions(self.context, q_arm)
-            rows = self.palm.CalcPoseInWorld(self.context).GetAsMatrix34().tolist()  # X_WPalm; C shares its R.
+            (R, (x, y, z)), joints = self._kinematics.pose(q_arm)  # X_WPalm; C shares its rotation.
             px, py, pz = self._p_PalmC_Palm
-            for r in rows:
-                r[3] += r[0] * px + r[1] * py + r[2] * pz
-            self._last = (list(q_arm), rows)
+            rows = [[R[0], R[1], R[2], x + R[0] * px + R[1] * py + R[2] * pz],
+                    [R[3], R[4], R[5], y + R[3] * px + R[4] * py + R[5] * pz],
+                    [R[6], R[7], R[8], z + R[6] * px + R[7] * py + R[8] * pz]]
+            self._last = (list(q_arm), rows, joints)
         return self._last[1]
 
     def step(self, q_arm: np.ndarray, p_WC_target: np.ndarray, R_WP_target: RotationMatrix,
@@ -101,8 +100,7 @@ class PalmIK:
                     max_step: float = 0.05) -> list[float]:
         """:meth:`step` on lists of floats (the env's per-tick call)."""
         r0, r1, r2 = self._pose(q_arm)
-        J = self.plant.CalcJacobianSpatialVelocity(self.context, JacobianWrtVariable.kQDot, self.palm,
-                                                   self.p_PalmC_Palm, self._world, self._world)
+        J = np.array(self._kinematics.jacobian(self._last[2], [r0[3], r1[3], r2[3]]))
         if self._target[0] is not R_WP_target:
             self._target = (R_WP_target, R_WP_target.matrix().tolist())
         # R_target R^T: the rotation still to go (row i of the target times row j of R).
