@@ -334,7 +334,10 @@ class SubtaskEnv(gym.Env):
         a = action.tolist()
         if not all(map(math.isfinite, a)):
             return self.observation(), 0.0, False, True, {"nan_action": True, "success": False}
-        a = [min(max(x, -1.0), 1.0) for x in self.randomizer.perturb_action(a)]  # DR hook: action noise
+        randomizer = self.randomizer if self.randomizer.enabled else None  # DR hooks only if any group is on.
+        if randomizer is not None:
+            a = randomizer.perturb_action(a)  # DR hook: action noise
+        a = [min(max(x, -1.0), 1.0) for x in a]
         if self.config.hand_actions:  # Joint targets scaled to the limits (allegro.scale_action_to_limits).
             target = [low + 0.5 * (x + 1.0) * r for x, low, r in zip(a[:16], _HAND_LOW, _HAND_RANGE, strict=True)]
             ema = self.config.ema
@@ -378,6 +381,7 @@ class SubtaskEnv(gym.Env):
         finally:
             self._step_values, self._step_memo = None, {}
         truncated = self._steps >= self.config.episode_length
-        self.randomizer.on_step()  # DR hook: re-applies object masses, re-draws every N plant steps
-        observation = self.randomizer.perturb_observation(observation)  # DR hook: observation noise
+        if randomizer is not None:
+            randomizer.on_step()  # DR hook: re-applies object masses, re-draws every N plant steps
+            observation = randomizer.perturb_observation(observation)  # DR hook: observation noise
         return observation, float(sum(terms.values())), terminated, truncated, info
