@@ -42,7 +42,7 @@ def test_the_region_render_counts_what_the_whole_image_shows(search_env):
     sensor, _, _ = _setup(env)
     counter = TargetPixelCounter.from_sensor(sensor)
     rng = np.random.default_rng(0)
-    seen, windows = [], set()
+    seen = []
     for seed in range(2):
         env.reset(seed=seed)
         for _ in range(6):
