@@ -327,19 +327,3 @@ def test_chain_controller_runs_with_a_station(tmp_path):
     assert np.all(np.isfinite(arm)) and np.linalg.norm(arm[:7] - q_hover) < 0.05  # untrained: small wrist moves
     np.testing.assert_allclose(out("approach_target"), plant.EvalBodyPoseInWorld(
         plant_context, body) @ body.default_com(), atol=1e-9)
-
-
-def test_rotation_vector_matches_drakes_angle_axis():
-    """The IK's float log map agrees with Drake's ToAngleAxis, small turns to half turns (the Drake branch)."""
-    from pydrake.common.eigen_geometry import Quaternion
-    from pydrake.math import RotationMatrix
-
-    from seqdex_drake.robots.arm_ik import rotation_vector
-
-    rng = np.random.default_rng(7)
-    small_turns = np.c_[np.ones(150), 1e-3 * rng.normal(size=(150, 3))]  # A few milliradians, as the IK sees.
-    for q in np.r_[small_turns, rng.normal(size=(150, 4))]:  # Any turn: about half beyond 90 degrees.
-        R = RotationMatrix(Quaternion(q / np.linalg.norm(q)))
-        angle_axis = R.ToAngleAxis()
-        np.testing.assert_allclose(rotation_vector(R.matrix()), angle_axis.angle() * angle_axis.axis(), atol=1e-12)
-    assert rotation_vector(np.eye(3)) == (0.0, 0.0, 0.0)

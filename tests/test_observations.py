@@ -2,8 +2,6 @@
 
 import numpy as np
 import pytest
-from pydrake.math import RigidTransform, RollPitchYaw
-from pydrake.systems.framework import BasicVector
 
 from seqdex_drake.robots.allegro import FINGERTIP_FRAMES, PALM_BODY
 from seqdex_drake.systems.observations import pose_vector
@@ -46,26 +44,6 @@ def test_observation_matches_the_plants_kinematics(env):
     assert np.abs(obs[46:124].reshape(6, 13)[:, 7:]).max() > 1e-3  # Really moving.
 
 
-def test_fingertip_frames_offset_from_their_bodies(env):
-    """The assembler's general case, frames not at their body's origin (our Allegro's tips are tip links)."""
-    assembler, context = env.assembler, env._assembler_context
-    X_BF = RigidTransform(RollPitchYaw(0.3, -0.2, 0.5), [0.01, -0.02, 0.03])
-    saved = assembler._X_BF, assembler._tips_are_bodies
-    try:
-        assembler._X_BF, assembler._tips_are_bodies = np.array([X_BF.GetAsMatrix34()] * 4), False
-        out = BasicVector(assembler.size)
-        type(assembler)._calc(assembler, context, out)
-    finally:
-        assembler._X_BF, assembler._tips_are_bodies = saved
-    for k, name in enumerate(FINGERTIP_FRAMES):
-        body = env.plant.GetFrameByName(name, env.hand).body()
-        X_WB = body.EvalPoseInWorld(env.plant_context)
-        V_WB = body.EvalSpatialVelocityInWorld(env.plant_context)
-        V_WF = V_WB.Shift(X_WB.rotation() @ X_BF.translation())
-        expected = np.concatenate([pose_vector(X_WB @ X_BF), V_WF.translational(), V_WF.rotational()])
-        np.testing.assert_allclose(out.value()[46 + 13 * k:59 + 13 * k], expected, atol=1e-12)
-
-
 def test_hand_points_and_fingertip_distance_agree_with_the_plant(env):
     expected = env.objects.hand_points(env.context)
     np.testing.assert_allclose(env.hand_points(), expected, atol=1e-12)
@@ -104,27 +82,6 @@ def test_goal_errors_read_from_the_observation_match_the_pose(env):
     assert position == pytest.approx(np.linalg.norm(pose[:3] - goal[:3]), abs=1e-12)
     assert rotation == pytest.approx(quaternion_angle(pose[3:], goal[3:]), abs=1e-9)
     assert rotation > 1.0  # tool Reorient's goal is the tool flipped: a real angle, not a trivial zero.
-
-
-def test_quaternions_match_drakes_conversion():
-    """The float rotation-matrix-to-quaternion conversion agrees with Drake's, also at the 180-degree turns
-    where w = 0 and each pivot of Shepperd's method is taken."""
-    from pydrake.common.eigen_geometry import Quaternion
-    from pydrake.math import RotationMatrix
-
-    from seqdex_drake.systems.observations import quaternions_wxyz
-
-    rng = np.random.default_rng(3)
-    rotations = [RotationMatrix(Quaternion(q / np.linalg.norm(q))) for q in rng.normal(size=(500, 4))]
-    rotations += [RotationMatrix(), RotationMatrix.MakeXRotation(np.pi), RotationMatrix.MakeYRotation(np.pi),
-                  RotationMatrix.MakeZRotation(np.pi), RotationMatrix.MakeXRotation(-0.5 * np.pi)]
-    expected = np.array([pose_vector(RigidTransform(R, np.zeros(3)))[3:] for R in rotations])
-    q = np.array(quaternions_wxyz(np.array([R.matrix() for R in rotations])))
-    assert np.all(q[:, 0] >= 0.0)
-    # At w = 0, q and -q are the same rotation: compare up to that sign there.
-    flip = (np.abs(expected[:, 0]) < 1e-12) & (np.sum(q * expected, axis=1) < 0)
-    q[flip] *= -1.0
-    np.testing.assert_allclose(q, expected, atol=1e-15)
 
 
 def test_the_steps_observation_is_the_ports():

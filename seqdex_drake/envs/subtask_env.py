@@ -293,13 +293,14 @@ class SubtaskEnv(gym.Env):
         return self.assembler.get_output_port().Eval(self._assembler_context)
 
     def _assemble_values(self, plant_state: list[float] | None = None) -> list[float]:
-        """The observation port's value as floats, computed on the plant's own context from the values the
-        port's inputs carry (the same numbers; without copying the state into the assembler's context and
-        computing the kinematics there too). ``plant_state``: the plant's [q, v] as floats, if at hand."""
+        """The observation port's value as floats, computed from the values the port's inputs carry (the same
+        numbers, without copying them into the assembler's context). ``plant_state``: the plant's [q, v] as
+        floats, if at hand."""
+        if plant_state is None:
+            plant_state = self.plant.GetPositionsAndVelocities(self._plant_context).tolist()
         pixel_input = None if self._pixel_port is None else self._pixel_port.Eval(self._station_context)
-        return self.assembler.assemble_values(self._plant_context, self._observation_target, self._previous_action,
-                                              self._hand_torque_port.Eval(self._station_context), pixel_input,
-                                              plant_state)
+        return self.assembler.assemble_values(plant_state, self._observation_target, self._previous_action,
+                                              self._hand_torque_port.Eval(self._station_context), pixel_input)
 
     def observation(self) -> np.ndarray:
         return self.raw_observation().astype(np.float32)

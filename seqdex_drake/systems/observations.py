@@ -24,7 +24,6 @@ same count, in about half the render time).
 """
 
 import dataclasses
-import math
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -35,6 +34,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 from pydrake.systems.sensors import ImageLabel16I
 
 from seqdex_drake.robots.allegro import FINGERTIP_FRAMES, PALM_BODY
+from seqdex_drake.robots.tree_kinematics import TreeKinematics
 from seqdex_drake.systems.target_pixels import TargetPixelCounter
 
 BASE_SIZE = 159
@@ -107,35 +107,6 @@ def quat_conjugate(q) -> list[float]:
     return [w, -x, -y, -z]
 
 
-def quaternion_wxyz(r0: list[float], r1: list[float], r2: list[float]) -> list[float]:
-    """The unit quaternion [w, x, y, z], w >= 0, of a rotation matrix given by its rows (floats; extra columns
-    are ignored, so the rows of a 3 x 4 [R | p] do), by Shepperd's method: the largest of 4 w^2 = 1 + tr R,
-    4 x^2 = 1 + 2 r00 - tr R, ... fixes the divisor. Plain float arithmetic: per-matrix conversions through
-    Drake cost a few Python calls each, and numpy's per-call overhead would be most of the cost, every env step."""
-    r00, r01, r02 = r0[0], r0[1], r0[2]
-    r10, r11, r12 = r1[0], r1[1], r1[2]
-    r20, r21, r22 = r2[0], r2[1], r2[2]
-    trace = r00 + r11 + r22
-    if trace >= r00 and trace >= r11 and trace >= r22:
-        s = 2.0 * math.sqrt(1.0 + trace)
-        q = [0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s]
-    elif r00 >= r11 and r00 >= r22:
-        s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
-        q = [(r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s]
-    elif r11 >= r22:
-        s = 2.0 * math.sqrt(1.0 - r00 + r11 - r22)
-        q = [(r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s]
-    else:
-        s = 2.0 * math.sqrt(1.0 - r00 - r11 + r22)
-        q = [(r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s]
-    return q if q[0] >= 0.0 else [-q[0], -q[1], -q[2], -q[3]]
-
-
-def quaternions_wxyz(R: np.ndarray) -> list[list[float]]:
-    """:func:`quaternion_wxyz` of each of (n, 3, 3) rotation matrices."""
-    return [quaternion_wxyz(*rows) for rows in np.asarray(R, dtype=float).tolist()]
-
-
 def pose_vector(X) -> np.ndarray:
     """[x, y, z, qw, qx, qy, qz] of a RigidTransform, with qw >= 0."""
     out = np.empty(7)
@@ -157,12 +128,10 @@ class ObservationAssembler(LeafSystem):
     [q, v]) and ``allegro.net_actuation``; with ``pixels=True`` also ``label_image``, with a pixel counter
     ``query_object``. Input ``previous_action`` (19). Output ``observation``.
 
-    The fingertip, palm and object kinematics are computed from ``plant_state`` on a plant context of the
-    system's own (a scratch workspace, overwritten at every evaluation, as in the manipulation course's
-    controllers): six bodies' poses and velocities, where the plant's ``body_poses`` and
-    ``body_spatial_velocities`` ports would convert all of them to Python objects at every control step. The
-    kinematics use the plant's default parameters, which domain randomization does not change for them (it
-    scales masses, inertias, friction, joint limits, stiffness and damping, not frame offsets).
+    The fingertip, palm and object poses and velocities are computed from ``plant_state`` by the compiled
+    :class:`~seqdex_drake.robots.tree_kinematics.TreeKinematics` (one call, no plant context), with the plant's
+    default frame offsets, which domain randomization does not change (it scales masses, inertias, friction,
+    joint limits, stiffness and damping, and object geometry).
 
     Args:
         plant: the station's plant, or one built from the same scenario (kept for the kinematics).
@@ -176,7 +145,6 @@ class ObservationAssembler(LeafSystem):
         super().__init__()
         hand, arm = plant.GetModelInstanceByName("allegro"), plant.GetModelInstanceByName("franka")
         self._plant = plant
-        self._scratch = plant.CreateDefaultContext()
         self._nq = plant.num_positions()
         # Where the canonical joint order (Franka 1-7, Allegro 0-15) sits in the plant state [q, v].
         q_index, v_index = np.arange(self._nq, dtype=float), np.arange(plant.num_velocities(), dtype=float)
@@ -184,13 +152,11 @@ class ObservationAssembler(LeafSystem):
             [plant.GetPositionsFromArray(arm, q_index), plant.GetPositionsFromArray(hand, q_index),
              self._nq + plant.GetVelocitiesFromArray(arm, v_index),
              self._nq + plant.GetVelocitiesFromArray(hand, v_index)]).astype(int).tolist()
-        self._tips = [plant.GetFrameByName(name, hand) for name in FINGERTIP_FRAMES]
-        self._tip_bodies = [f.body() for f in self._tips]
-        self._X_BF = np.array([f.GetFixedPoseInBodyFrame().GetAsMatrix34() for f in self._tips])  # (4, 3, 4)
-        self._tips_are_bodies = all(f.GetFixedPoseInBodyFrame().IsExactlyIdentity() for f in self._tips)
-        self._palm = plant.GetBodyByName(PALM_BODY, hand)
-        self._bodies = {}  # Body index -> body, of the target objects seen (set_target).
-        self._frames = {}  # Body index -> its geometry frame (with a pixel counter).
+        # The four fingertip frames and the palm; each target object's body frame is appended (set_target).
+        self._frames = [plant.GetFrameByName(name, hand) for name in FINGERTIP_FRAMES]
+        self._frames.append(plant.GetBodyByName(PALM_BODY, hand).body_frame())
+        self._kinematics = {}  # Target body index -> TreeKinematics of the six frames.
+        self._frame_ids = {}  # Target body index -> its geometry frame (with a pixel counter).
         self._counter = pixels if isinstance(pixels, TargetPixelCounter) else None
         self._goal, self._pixels = goal, bool(pixels)
         self.size = BASE_SIZE + (GOAL_SIZE if goal else 0) + (1 if pixels else 0)
@@ -206,59 +172,49 @@ class ObservationAssembler(LeafSystem):
 
     def set_target(self, context, target: ObservationTarget) -> None:
         """Sets the episode's target object, goal and label in this system's context."""
-        if target.object_body >= 0 and target.object_body not in self._bodies:
+        if target.object_body >= 0 and target.object_body not in self._kinematics:
             if not 0 <= target.object_body < self._plant.num_bodies():
                 raise ValueError(f"ObservationAssembler: no body with index {target.object_body} in the plant "
                                  f"({self._plant.num_bodies()} bodies)")
-            self._bodies[target.object_body] = self._plant.get_body(BodyIndex(target.object_body))
+            body = self._plant.get_body(BodyIndex(target.object_body))
+            self._kinematics[target.object_body] = TreeKinematics(self._plant, self._frames + [body.body_frame()])
             if self._counter is not None:
-                self._frames[target.object_body] = self._plant.GetBodyFrameIdOrThrow(BodyIndex(target.object_body))
+                self._frame_ids[target.object_body] = self._plant.GetBodyFrameIdOrThrow(body.index())
         context.get_mutable_abstract_parameter(self._target_index).set_value(target)
 
     def target(self, context) -> ObservationTarget:
         return context.get_abstract_parameter(self._target_index).get_value()
 
     def _calc(self, context, output: BasicVector) -> None:
-        target = self.target(context)
-        self._plant.SetPositionsAndVelocities(self._scratch, self.get_input_port(0).Eval(context))
         pixel_input = self.get_input_port(3).Eval(context) if self._pixels else None
-        output.SetFromVector(self.assemble(self._scratch, target, self.get_input_port(2).Eval(context),
-                                           self.get_input_port(1).Eval(context), pixel_input))
+        output.SetFromVector(self.assemble_values(self.get_input_port(0).Eval(context).tolist(), self.target(context),
+                                                  self.get_input_port(2).Eval(context),
+                                                  self.get_input_port(1).Eval(context), pixel_input))
 
     def assemble(self, plant_context, target: ObservationTarget, previous_action: np.ndarray,
                  net_actuation: np.ndarray, pixel_input=None) -> np.ndarray:
-        """The observation of the state in ``plant_context``, a context of the plant this system was built with.
+        """The observation of the state in ``plant_context`` (a context of the plant this system was built with)
+        and the given inputs: what the output port computes from its input ports. ``pixel_input``: with pixels,
+        the label image (``pixels=True``) or the query object (a counter)."""
+        return np.array(self.assemble_values(self._plant.GetPositionsAndVelocities(plant_context).tolist(), target,
+                                             previous_action, net_actuation, pixel_input))
 
-        The output port computes it on the system's own plant context, from its input ports. A caller that
-        owns the plant's context and the other inputs (``SubtaskEnv``) gets the same vector directly, without
-        copying the state or computing the kinematics twice (the plant's own context keeps them for its next
-        step). ``pixel_input``: with pixels, the label image (``pixels=True``) or the query object (a counter)."""
-        return np.array(self.assemble_values(plant_context, target, previous_action, net_actuation, pixel_input))
+    def assemble_values(self, plant_state: list[float], target: ObservationTarget, previous_action, net_actuation,
+                        pixel_input=None) -> list[float]:
+        """:meth:`assemble` of the plant's state [q, v] given as a list of floats, as a list of floats (what
+        ``SubtaskEnv.step`` reads back in float arithmetic).
 
-    def assemble_values(self, plant_context, target: ObservationTarget, previous_action, net_actuation,
-                        pixel_input=None, plant_state: list[float] | None = None) -> list[float]:
-        """:meth:`assemble` as a list of floats (what ``SubtaskEnv.step`` reads back in float arithmetic).
-        ``plant_state``: the plant's [q, v] in ``plant_context`` as a list of floats, where the caller has it.
-
-        Built in plain Python from a handful of Drake calls and ``tolist()`` conversions: right after a
-        physics step this code runs with the caches cold, where every distinct numpy function costs several
-        microseconds (see the README's "Where the env time goes"), and a list of ~160 floats is cheap."""
-        if target.object_body not in self._bodies:
+        Built in plain Python around one compiled kinematics call: right after a physics step this code runs
+        with the caches cold, where every distinct numpy function or Drake call costs several microseconds
+        (see the README's "Where the env time goes"), and a list of ~160 floats is cheap."""
+        kinematics = self._kinematics.get(target.object_body)
+        if kinematics is None:
             raise RuntimeError("ObservationAssembler: no target object set; call set_target() at reset")
-        plant = self._plant
-        x = plant.GetPositionsAndVelocities(plant_context).tolist() if plant_state is None else plant_state
+        x = plant_state
         values = [x[i] for i in self._joint_index]
-        # The 4 fingertip frames, the palm and the object, one 13-row each: pose (7), linear, angular velocity.
-        bodies = (*self._tip_bodies, self._palm, self._bodies[target.object_body])
-        poses = [plant.EvalBodyPoseInWorld(plant_context, body).GetAsMatrix34().tolist() for body in bodies]
-        velocities = [plant.EvalBodySpatialVelocityInWorld(plant_context, body).get_coeffs().tolist()
-                      for body in bodies]  # Drake's coefficients are [angular, linear].
-        if not self._tips_are_bodies:
-            self._tip_frames_from_bodies(poses, velocities)
-        for (r0, r1, r2), (wx, wy, wz, vx, vy, vz) in zip(poses, velocities, strict=True):
-            values += (r0[3], r1[3], r2[3])
-            values += quaternion_wxyz(r0, r1, r2)  # The hemisphere qw >= 0.
-            values += (vx, vy, vz, wx, wy, wz)
+        # The 4 fingertip frames, the palm and the object, one 13-row each: position, quaternion (the hemisphere
+        # qw >= 0), linear and angular velocity.
+        values += kinematics.states(x)
         values += floats(previous_action)
         values += floats(net_actuation)
         if self._goal:
@@ -267,20 +223,10 @@ class ObservationAssembler(LeafSystem):
             values += (goal[0] - values[111], goal[1] - values[112], goal[2] - values[113])
             values += quat_product(goal[3:], quat_conjugate(values[114:118]))
         if self._counter is not None:
-            values.append(float(self._counter.count(pixel_input, target.label, self._frames[target.object_body],
-                                                    poses[5])))
+            R, p = (entries := kinematics.poses(x)[60:72])[:9], entries[9:]  # The object's X_WB.
+            X_WB = [[R[0], R[1], R[2], p[0]], [R[3], R[4], R[5], p[1]], [R[6], R[7], R[8], p[2]]]
+            values.append(float(self._counter.count(pixel_input, target.label, self._frame_ids[target.object_body],
+                                                    X_WB)))
         elif self._pixels:
             values.append(float(np.count_nonzero(pixel_input.data == target.label)))
         return values
-
-    def _tip_frames_from_bodies(self, poses: list, velocities: list) -> None:
-        """Replaces the first four bodies' poses and velocities by their fingertip frames' (in place), for a
-        hand model whose fingertip frames are offset in their bodies: X_WF = X_WB X_BF; F moves at
-        v_WB + w_WB x p_BF (in the world)."""
-        X, V = np.array(poses[:4]), np.array(velocities[:4])
-        R_WB, X_BF = X[:, :, :3], self._X_BF
-        p_BF_W = np.einsum("nij,nj->ni", R_WB, X_BF[:, :, 3])
-        V[:, 3:] += np.cross(V[:, :3], p_BF_W)
-        X[:, :, 3] += p_BF_W
-        X[:, :, :3] = R_WB @ X_BF[:, :, :3]
-        poses[:4], velocities[:4] = X.tolist(), V.tolist()
