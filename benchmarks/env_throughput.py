@@ -21,9 +21,14 @@ the env/raw ratio can reach with these observations, however cheap the rest of t
 sampled output ports the read returns the last plant step's torques and costs nothing (ceiling ~1); with
 ``use_sampled_output_ports: false`` it forces one extra discrete contact solve per step.
 
-Vector env (grasp, or every sub-task with ``--all``): ``ProcessVectorEnv`` with 1 and 2 workers, alternating, in
-two layouts: one env per worker, and ``--envs-per-worker`` envs per worker (default 8: 8 envs against 16, PPO's
-default ``num_envs`` on 2 workers); each runs about ``--vector-steps`` env steps per env slot of zero actions
+Vector env (grasp, or every sub-task with ``--all``): ``ProcessVectorEnv`` with 1 and 2 workers, alternating,
+on the same envs, so that both do the same work: one env per worker (2 envs: 1 worker hosting both against 2
+workers hosting one each), and ``--envs-per-worker`` envs per worker (default 8: 16 envs, PPO's default
+``num_envs``, in 1 worker against 2 workers of 8). Env ``i`` is seeded ``i`` in every layout and steps zero
+actions, so the two layouts simulate the same trajectories and the speedup is the time ratio for the same work.
+(Until session 10 the 1-worker side hosted only 8 envs, seeds 0-7, against 2 x 8 with seeds 0-15: a different
+workload, whose second half could be costlier or cheaper; ``weak_scaling_speedup_<k>_envs_per_worker`` still
+reports that comparison, 2 x k against 1 x k.) Each layout runs about ``--vector-steps`` env steps per env slot
 (automatic resets included), alternating ``--repeats`` times, summed; steps/s counts env steps (envs x vector
 steps). ``inprocess_steps_per_s`` is a plain env stepped the same way in this process.
 ``other_processes_busy_cores`` is how many cores other processes kept busy meanwhile (from /proc): a 2-worker
@@ -38,8 +43,8 @@ simulations gain (shared caches and memory bandwidth, clock boost).
 The last line is one JSON object; ``env_over_raw_min`` is the smallest env/raw ratio over the paper's six
 sub-tasks measured (goal >= 0.90; ``env_over_raw_min_all_tasks`` includes the hand-over chain's Reach and Lower,
 whose ~2 ms of physics per step make any Python step code weigh more), ``two_worker_speedup`` the 2-worker
-over the 1-worker rate for grasp with ``--envs-per-worker`` envs per worker (goal >= 1.8 on 2 cores;
-``two_worker_speedup_1_env_per_worker`` is the same with one env per worker), and ``failed`` maps a sub-task
+over the 1-worker rate for grasp, on 2 x ``--envs-per-worker`` envs (goal >= 1.8 on 2 cores;
+``two_worker_speedup_1_env_per_worker`` is the same on 2 envs, one per worker), and ``failed`` maps a sub-task
 whose env could not be built or stepped to its error (it is left out of the minimum).
 
     python benchmarks/env_throughput.py [--seconds 3] [--repeats 3] [--vector-steps 300] [--envs-per-worker 8]
@@ -226,14 +231,18 @@ def _step_durations(name: str, seed: int, steps: int) -> np.ndarray:
 
 
 def vector(name: str, steps: int, repeats: int, envs_per_worker: int) -> dict:
-    """Env steps/s with 1 and 2 workers, each hosting 1 env and ``envs_per_worker`` envs (``repeats``
-    alternating runs, summed), and in this process."""
+    """Env steps/s of the same 2k envs in 1 worker and in 2 workers of k, for k = 1 and ``envs_per_worker``, and
+    of k envs in 1 worker (the weak-scaling reference; ``repeats`` alternating runs, summed), and in this
+    process."""
     durations = [_step_durations(name, seed, steps) for seed in (0, 1)]  # The two workers' envs, in-process.
     inprocess = float(steps / durations[0].sum())
     # A synchronous vector step lasts as long as its slowest env's step: with 2 envs on 2 perfectly parallel
     # cores, throughput is 2 steps per max(t0, t1); one process steps both envs, one after the other.
     sync_bound = float((durations[0] + durations[1]).sum() / np.maximum(*durations).sum())
-    layouts = [(workers, k) for k in sorted({1, envs_per_worker}) for workers in (1, 2)]
+    ks = sorted({1, envs_per_worker})
+    layouts = [layout for k in ks for layout in ((1, 2 * k), (2, k))]  # (workers, envs per worker)
+    if envs_per_worker > 1:
+        layouts.append((1, envs_per_worker))  # The weak-scaling reference: half the envs in 1 worker.
     totals = {layout: [0, 0.0, 0.0] for layout in layouts}  # env steps, elapsed s, other processes' CPU s
     start = time.perf_counter()
     vector_envs = {}
@@ -246,7 +255,8 @@ def vector(name: str, steps: int, repeats: int, envs_per_worker: int) -> dict:
             _time_vector(vector_env, WARMUP_STEPS)
         for _ in range(repeats):  # Alternating, summed: the machine's speed drifts alike for every layout.
             for layout, vector_env in vector_envs.items():
-                env_steps, elapsed, others = _time_vector(vector_env, max(1, steps // layout[1]))
+                # The two layouts of one k host the same 2k envs: the same vector steps, the same trajectories.
+                env_steps, elapsed, others = _time_vector(vector_env, max(1, 2 * steps // vector_env.num_envs))
                 total = totals[layout]
                 total[0], total[1] = total[0] + env_steps, total[1] + elapsed
                 total[2] = None if others is None or total[2] is None else total[2] + others
@@ -255,11 +265,14 @@ def vector(name: str, steps: int, repeats: int, envs_per_worker: int) -> dict:
             vector_env.close()
     rates = {layout: total[0] / total[1] for layout, total in totals.items()}
     result = {"inprocess_steps_per_s": round(inprocess, 1), "sync_bound_speedup": round(sync_bound, 3)}
-    for k in sorted({1, envs_per_worker}):
+    for k in ks:
         suffix = "" if k == 1 else f"_{k}_envs_per_worker"
-        result[f"workers_1{suffix}_steps_per_s"] = round(rates[1, k], 1)
+        result[f"workers_1{suffix}_steps_per_s"] = round(rates[1, 2 * k], 1)
         result[f"workers_2{suffix}_steps_per_s"] = round(rates[2, k], 1)
-        result[f"two_worker_speedup{suffix or '_1_env_per_worker'}"] = round(rates[2, k] / rates[1, k], 3)
+        result[f"two_worker_speedup{suffix or '_1_env_per_worker'}"] = round(rates[2, k] / rates[1, 2 * k], 3)
+    if envs_per_worker > 1:
+        result[f"weak_scaling_speedup_{envs_per_worker}_envs_per_worker"] = round(
+            rates[2, envs_per_worker] / rates[1, envs_per_worker], 3)
     result.update({"startup_s_all_vector_envs": round(startup, 2), "vector_steps": steps,
                    "other_processes_busy_cores": {f"{w}x{k}": None if t[2] is None else round(t[2] / t[1], 2)
                                                   for (w, k), t in totals.items()}})
