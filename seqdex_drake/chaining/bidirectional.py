@@ -20,7 +20,7 @@ from seqdex_drake.chaining.feasibility_io import load_feasibility, save_feasibil
 from seqdex_drake.chaining.pipeline import CHAINED_METHODS, PipelineConfig, RunDirectory, pipeline_budget
 from seqdex_drake.chaining.rollouts import collect_transitions, deterministic_policy, evaluate_chain, run_prefix
 from seqdex_drake.chaining.terminal_buffer import TerminalBuffer
-from seqdex_drake.chaining.tstar import TStarConfig, TStarDiscriminator
+from seqdex_drake.chaining.tstar import fit_tstar, tstar_bonus
 from seqdex_drake.chaining.wrappers import InitialStateVectorEnv, TransitionBonusVectorEnv
 from seqdex_drake.rl.config import PPOConfig
 from seqdex_drake.rl.ppo import PPO
@@ -278,25 +278,8 @@ class Pipeline:
                                             self.run.feasibility(target))
             outcome = {}
             if method == "tstar":
-                discriminator = TStarDiscriminator(source_dim, TStarConfig(seed=self.config.seed))
-                last = torch.as_tensor(data["histories"][:, -1], dtype=torch.float32)
-                positive = last[torch.as_tensor(data["successes"])]
-                if len(positive) == 0 and self.config.handoff_failures:
-                    positive = last
-                if len(positive) == 0:  # Nothing to tell apart: no discriminator, a zero bonus (said loudly).
-                    self.log(f"warning: T-STAR: no {target} execution succeeded from {source}'s terminal states, so "
-                             f"its discriminator has no positive examples; the transition reward is 0 (fine-tuning "
-                             f"{source} on its own reward). Train {target} longer for a real T-STAR run.")
-                    self.run.tstar(target).unlink(missing_ok=True)
-                    return {"positives": 0}
-                discriminator.fit_normalizer(last)
-                for _ in range(self.config.tstar_steps):
-                    losses = discriminator.train_step(positive, last)
-                payload = io.BytesIO()
-                torch.save(discriminator.training_state(), payload)
-                atomic_write(self.run.tstar(target), lambda file: file.write(payload.getvalue()))
-                outcome.update(positives=len(positive), accuracy=discriminator.accuracy(positive, last),
-                               loss=losses["loss"])
+                outcome = fit_tstar(data, source_dim, self.config.seed, self.config.tstar_steps,
+                                    self.config.handoff_failures, self.run.tstar(target), self.log, source, target)
             return outcome
 
         self._timed(phase, work)
@@ -304,11 +287,7 @@ class Pipeline:
             model = load_feasibility(self.run.feasibility(target)).model
             return model.predict
         if method == "tstar":
-            if not self.run.tstar(target).is_file():  # No positive examples (see above): no transition reward.
-                return lambda history: 0.0
-            state = torch.load(self.run.tstar(target), weights_only=False)
-            discriminator = TStarDiscriminator.from_training_state(state)
-            return lambda history: float(discriminator.transition_reward(history[-1:])[0])
+            return tstar_bonus(self.run.tstar(target))
         # V-Chain: the next stage's PPO critic on the hand-over observation.
         critic = PPO.resume(self.run.policy(target)).model
         target_dim = envs[index].observation_space.shape[0]

@@ -18,10 +18,15 @@ public code behaves the same; T-STAR relies on this smoothness for a graded rewa
 
 import copy
 import dataclasses
+import io
+from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import torch
 from torch import nn
+
+from seqdex_drake.atomic import atomic_write
 
 
 @dataclasses.dataclass
@@ -152,3 +157,39 @@ class TStarDiscriminator(nn.Module):
         discriminator.optimizer.load_state_dict(copy.deepcopy(state["optimizer"]))
         discriminator._generator.set_state(state["generator"])
         return discriminator
+
+
+def fit_tstar(data: dict, source_dim: int, seed: int, steps: int, use_failures: bool, path: Path,
+              log: Callable[[str], None], source: str, target: str) -> dict:
+    """Trains the discriminator of the ``source`` -> ``target`` boundary on transition ``data`` (its
+    ``histories`` [n, h, d] and ``successes`` [n]: whether ``target`` succeeded from each terminal state) and
+    saves its training state to ``path`` (atomically). Positives are the terminal states ``target`` succeeded
+    from (all of them with ``use_failures`` when none did). With no positives it trains nothing, removes
+    ``path`` and says so through ``log``. Returns figures for the run's log."""
+    last = torch.as_tensor(data["histories"][:, -1], dtype=torch.float32)
+    positive = last[torch.as_tensor(data["successes"])]
+    if len(positive) == 0 and use_failures:
+        positive = last
+    if len(positive) == 0:  # Nothing to tell apart: no discriminator, a zero bonus (said loudly).
+        log(f"warning: T-STAR: no {target} execution succeeded from {source}'s terminal states, so its "
+            f"discriminator has no positive examples; the transition reward is 0 (fine-tuning {source} on its own "
+            f"reward). Train {target} longer for a real T-STAR run.")
+        Path(path).unlink(missing_ok=True)
+        return {"positives": 0}
+    discriminator = TStarDiscriminator(source_dim, TStarConfig(seed=seed))
+    discriminator.fit_normalizer(last)
+    for _ in range(steps):
+        losses = discriminator.train_step(positive, last)
+    payload = io.BytesIO()
+    torch.save(discriminator.training_state(), payload)
+    atomic_write(path, lambda file: file.write(payload.getvalue()))
+    return {"positives": len(positive), "accuracy": discriminator.accuracy(positive, last), "loss": losses["loss"]}
+
+
+def tstar_bonus(path: Path) -> Callable[[np.ndarray], float]:
+    """The transition reward of the discriminator saved at ``path`` by :func:`fit_tstar`, as a function of an
+    observation history (its last row is scored); 0 everywhere when none was saved (no positive examples)."""
+    if not Path(path).is_file():
+        return lambda history: 0.0
+    discriminator = TStarDiscriminator.from_training_state(torch.load(path, weights_only=False))
+    return lambda history: float(discriminator.transition_reward(history[-1:])[0])
