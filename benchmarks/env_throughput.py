@@ -11,7 +11,9 @@ own code alone. (Earlier versions held the last targets and ran no wake check, s
 Orient's raw loop came out slower than the env, Search's kept disturbed blocks frozen and cheap.)
 The two are interleaved in chunks of ``CHUNK_STEPS`` (10) control steps: the env steps a chunk from the chunk's
 start state, the raw loop replays that chunk from the same state, and the next chunk starts where the env's ended;
-this runs for about ``--seconds`` of env time, ``--repeats`` times from the saved state, and the times are summed.
+this runs for about ``--seconds`` of env time and at least ``--min-steps`` steps (default 40: Search, at ~5 steps
+per second, got only 2 chunks per repeat before session 10, and its ratio moved by 0.06 between runs), within one
+episode, ``--repeats`` times from the saved state, and the times are summed.
 Ratios of sums over finely interleaved chunks, so that the machine's speed, which drifts by 20-30 % within
 minutes here, weighs on both sides alike. (Best-of-N rates did not: the best of each side could come from
 different minutes. Session 6 alternated whole 3 s runs, still long enough for single tasks to move by 0.1.)
@@ -47,7 +49,8 @@ over the 1-worker rate for grasp, on 2 x ``--envs-per-worker`` envs (goal >= 1.8
 ``two_worker_speedup_1_env_per_worker`` is the same on 2 envs, one per worker), and ``failed`` maps a sub-task
 whose env could not be built or stepped to its error (it is left out of the minimum).
 
-    python benchmarks/env_throughput.py [--seconds 3] [--repeats 3] [--vector-steps 300] [--envs-per-worker 8]
+    python benchmarks/env_throughput.py [--seconds 3] [--repeats 3] [--min-steps 40] [--vector-steps 300]
+                                        [--envs-per-worker 8]
                                         [--all] [--test]
 """
 
@@ -121,8 +124,9 @@ def _time_raw(env, state, steps: int, replay: list | None = None, tactile: bool 
     return elapsed, exact
 
 
-def single_process(name: str, seconds: float, repeats: int) -> dict:
-    """Env and raw step rates of sub-task ``name`` in this process, over ``repeats`` alternating runs."""
+def single_process(name: str, seconds: float, repeats: int, min_steps: int = 0) -> dict:
+    """Env and raw step rates of sub-task ``name`` in this process, over ``repeats`` alternating runs of about
+    ``seconds`` each and at least ``min_steps`` steps (both within one episode)."""
     env = make_env(name)
     env.reset(seed=0)
     for _ in range(WARMUP_STEPS):
@@ -135,7 +139,7 @@ def single_process(name: str, seconds: float, repeats: int) -> dict:
         # chunk from the same state; the next chunk starts where the env's ended. Interleaved this finely, both
         # sides see the same machine speed, which drifts by 20-30 % within minutes here.
         chunk_state, steps, elapsed = state, 0, 0.0
-        while steps < max_steps and (steps == 0 or elapsed < seconds):
+        while steps < max_steps and (steps < max(1, min_steps) or elapsed < seconds):
             n, chunk_elapsed, replay = _time_env(env, chunk_state, seconds, min(CHUNK_STEPS, max_steps - steps))
             next_state = env.get_state()
             raw_elapsed, exact = _time_raw(env, chunk_state, n, replay)
@@ -290,6 +294,9 @@ def main(argv=None):
     parser.add_argument("--seconds", type=float, default=3.0, help="seconds per single-process env measurement")
     parser.add_argument("--repeats", type=int, default=3, help="alternating repeats, summed")
     parser.add_argument("--vector-steps", type=int, default=300, help="vector steps per vector measurement")
+    parser.add_argument("--min-steps", type=int, default=40,
+                        help="per repeat, at least this many env steps (within one episode): Search, at ~5 steps "
+                             "per second, would otherwise be measured on 2 chunks per repeat")
     parser.add_argument("--tasks", nargs="*", default=None, help="sub-tasks for the single-process part")
     parser.add_argument("--all", action="store_true", help="vector part for every sub-task, not only grasp")
     parser.add_argument("--envs-per-worker", type=int, default=8,
@@ -298,13 +305,13 @@ def main(argv=None):
     parser.add_argument("--test", action="store_true", help="a tiny run (a few steps per measurement)")
     args = parser.parse_args(argv)
     if args.test:
-        args.seconds, args.repeats, args.vector_steps = 0.05, 1, 5
+        args.seconds, args.repeats, args.vector_steps, args.min_steps = 0.05, 1, 5, 1
     names = args.tasks or task_names()
     load_before = os.getloadavg()
     single, failed = {}, {}
     for name in names:
         try:
-            single[name] = single_process(name, args.seconds, args.repeats)
+            single[name] = single_process(name, args.seconds, args.repeats, args.min_steps)
         except Exception as error:  # noqa: BLE001 - a broken sub-task is reported, the others still measured.
             failed[name] = f"{type(error).__name__}: {error}"
             print(f"{name:14s} FAILED {failed[name]}", flush=True)
