@@ -32,7 +32,11 @@ actions, so the two layouts simulate the same trajectories and the speedup is th
 workload, whose second half could be costlier or cheaper; ``weak_scaling_speedup_<k>_envs_per_worker`` still
 reports that comparison, 2 x k against 1 x k.) Each layout runs about ``--vector-steps`` env steps per env slot
 (automatic resets included), alternating ``--repeats`` times, summed; steps/s counts env steps (envs x vector
-steps). ``inprocess_steps_per_s`` is a plain env stepped the same way in this process.
+steps). ``inprocess_steps_per_s`` is a plain env stepped the same way in this process. The 2 x k layout is timed
+twice: with lock-step ``step`` calls, where every step waits for the slower worker, and as PPO steps it by default
+(``PPOConfig.grouped_rollouts``): rollouts of the sub-task's PPO horizon (grasp: 8) in which each worker's group
+steps on through ``step_async`` / ``step_wait`` as soon as its previous step is in, the groups meeting at the end
+of each rollout (``workers_2_grouped_..._steps_per_s``, ``two_worker_speedup_grouped_...``).
 ``other_processes_busy_cores`` is how many cores other processes kept busy meanwhile (from /proc): a 2-worker
 speedup on 2 cores is only meaningful when it is near 0.
 ``sync_bound_speedup`` is what the per-step times allow a synchronous vector env: envs seeded 0 and 1 (the two
@@ -45,8 +49,9 @@ simulations gain (shared caches and memory bandwidth, clock boost).
 The last line is one JSON object; ``env_over_raw_min`` is the smallest env/raw ratio over the paper's six
 sub-tasks measured (goal >= 0.90; ``env_over_raw_min_all_tasks`` includes the hand-over chain's Reach and Lower,
 whose ~2 ms of physics per step make any Python step code weigh more), ``two_worker_speedup`` the 2-worker
-over the 1-worker rate for grasp, on 2 x ``--envs-per-worker`` envs (goal >= 1.8 on 2 cores;
-``two_worker_speedup_1_env_per_worker`` is the same on 2 envs, one per worker), and ``failed`` maps a sub-task
+over the 1-worker rate for grasp, on 2 x ``--envs-per-worker`` envs, with grouped rollouts as PPO steps them
+(goal >= 1.8 on 2 cores; ``two_worker_speedup_lockstep`` the same with lock-step ``step`` calls,
+``two_worker_speedup_1_env_per_worker`` lock-step on 2 envs, one per worker), and ``failed`` maps a sub-task
 whose env could not be built or stepped to its error (it is left out of the minimum).
 
     python benchmarks/env_throughput.py [--seconds 3] [--repeats 3] [--min-steps 40] [--vector-steps 300]
@@ -63,6 +68,7 @@ import time
 import numpy as np
 
 from seqdex_drake.envs.vector import ProcessVectorEnv
+from seqdex_drake.rl.config import PAPER_TASK_HYPERPARAMETERS, PPOConfig
 from seqdex_drake.tasks.registry import PAPER_TASKS, make_env, task_names
 
 WARMUP_STEPS = 5
@@ -183,6 +189,32 @@ def _time_vector(vector_env: ProcessVectorEnv, steps: int) -> tuple[int, float, 
     return vector_env.num_envs * steps, elapsed, others
 
 
+def _time_vector_grouped(vector_env: ProcessVectorEnv, steps: int, horizon: int) -> tuple[int, float, float | None]:
+    """:func:`_time_vector` as PPO's grouped rollouts step (``PPOConfig.grouped_rollouts``): rollouts of
+    ``horizon`` steps in which each worker's group steps on as soon as its previous step is in, the groups
+    meeting only at the end of each rollout; about ``steps`` vector steps in all, zero actions."""
+    groups = vector_env.step_groups
+    actions = [np.zeros((len(group), 19)) for group in groups]
+    rollouts = max(1, steps // horizon)
+    pids = [os.getpid(), *sorted(set(vector_env.pids))]
+    before, start = _cpu_seconds(pids), time.perf_counter()
+    for _ in range(rollouts):
+        progress = [0] * len(groups)
+        for group, group_actions in enumerate(actions):
+            vector_env.step_async(group, group_actions)
+        running = len(groups)
+        while running:
+            group, _ = vector_env.step_wait()
+            progress[group] += 1
+            if progress[group] < horizon:
+                vector_env.step_async(group, actions[group])
+            else:
+                running -= 1
+    elapsed, after = time.perf_counter() - start, _cpu_seconds(pids)
+    others = None if before is None or after is None else max(0.0, (after[0] - before[0]) - (after[1] - before[1]))
+    return vector_env.num_envs * horizon * rollouts, elapsed, others
+
+
 def _raw_worker(name: str, steps: int, barrier, results) -> None:
     """Builds sub-task ``name``'s env, waits for the others, then times ``steps`` raw control periods."""
     env = make_env(name)
@@ -247,7 +279,10 @@ def vector(name: str, steps: int, repeats: int, envs_per_worker: int) -> dict:
     layouts = [layout for k in ks for layout in ((1, 2 * k), (2, k))]  # (workers, envs per worker)
     if envs_per_worker > 1:
         layouts.append((1, envs_per_worker))  # The weak-scaling reference: half the envs in 1 worker.
+    layouts = list(dict.fromkeys(layouts))  # (1, 2) twice when envs_per_worker is 2.
     totals = {layout: [0, 0.0, 0.0] for layout in layouts}  # env steps, elapsed s, other processes' CPU s
+    totals["grouped"] = [0, 0.0, 0.0]  # 2 workers of envs_per_worker, PPO's grouped rollouts
+    horizon = PAPER_TASK_HYPERPARAMETERS.get(name, {}).get("horizon", PPOConfig.horizon)
     start = time.perf_counter()
     vector_envs = {}
     try:
@@ -258,9 +293,11 @@ def vector(name: str, steps: int, repeats: int, envs_per_worker: int) -> dict:
             vector_env.reset()
             _time_vector(vector_env, WARMUP_STEPS)
         for _ in range(repeats):  # Alternating, summed: the machine's speed drifts alike for every layout.
-            for layout, vector_env in vector_envs.items():
+            for layout, vector_env in [*vector_envs.items(), ("grouped", vector_envs[2, envs_per_worker])]:
                 # The two layouts of one k host the same 2k envs: the same vector steps, the same trajectories.
-                env_steps, elapsed, others = _time_vector(vector_env, max(1, 2 * steps // vector_env.num_envs))
+                vector_steps = max(1, 2 * steps // vector_env.num_envs)
+                env_steps, elapsed, others = (_time_vector_grouped(vector_env, vector_steps, horizon)
+                                              if layout == "grouped" else _time_vector(vector_env, vector_steps))
                 total = totals[layout]
                 total[0], total[1] = total[0] + env_steps, total[1] + elapsed
                 total[2] = None if others is None or total[2] is None else total[2] + others
@@ -274,19 +311,27 @@ def vector(name: str, steps: int, repeats: int, envs_per_worker: int) -> dict:
         result[f"workers_1{suffix}_steps_per_s"] = round(rates[1, 2 * k], 1)
         result[f"workers_2{suffix}_steps_per_s"] = round(rates[2, k], 1)
         result[f"two_worker_speedup{suffix or '_1_env_per_worker'}"] = round(rates[2, k] / rates[1, 2 * k], 3)
+    suffix = "" if envs_per_worker == 1 else f"_{envs_per_worker}_envs_per_worker"
+    result[f"workers_2_grouped{suffix}_steps_per_s"] = round(rates["grouped"], 1)
+    result[f"two_worker_speedup_grouped{suffix}"] = round(rates["grouped"] / rates[1, 2 * envs_per_worker], 3)
+    result["grouped_rollout_horizon"] = horizon
     if envs_per_worker > 1:
         result[f"weak_scaling_speedup_{envs_per_worker}_envs_per_worker"] = round(
             rates[2, envs_per_worker] / rates[1, envs_per_worker], 3)
     result.update({"startup_s_all_vector_envs": round(startup, 2), "vector_steps": steps,
-                   "other_processes_busy_cores": {f"{w}x{k}": None if t[2] is None else round(t[2] / t[1], 2)
-                                                  for (w, k), t in totals.items()}})
+                   "other_processes_busy_cores": {
+                       layout if layout == "grouped" else "{}x{}".format(*layout):
+                       None if t[2] is None else round(t[2] / t[1], 2) for layout, t in totals.items()}})
     return result
 
 
-def _speedup(result: dict, envs_per_worker: int) -> float:
-    """The 2-worker speedup of a :func:`vector` result at ``envs_per_worker`` envs per worker."""
-    suffix = "_1_env_per_worker" if envs_per_worker == 1 else f"_{envs_per_worker}_envs_per_worker"
-    return result[f"two_worker_speedup{suffix}"]
+def _speedup(result: dict, envs_per_worker: int, grouped: bool = True) -> float:
+    """The 2-worker speedup of a :func:`vector` result at ``envs_per_worker`` envs per worker, with PPO's grouped
+    rollouts (``grouped``) or lock-step ``step`` calls."""
+    suffix = "" if envs_per_worker == 1 else f"_{envs_per_worker}_envs_per_worker"
+    if grouped:
+        return result[f"two_worker_speedup_grouped{suffix}"]
+    return result[f"two_worker_speedup{suffix or '_1_env_per_worker'}"]
 
 
 def main(argv=None):
@@ -329,6 +374,8 @@ def main(argv=None):
                                 default=None),
         "env_over_raw_min_all_tasks": min((r["env_over_raw"] for r in single.values()), default=None),
         "two_worker_speedup": _speedup(vectors.get("grasp", next(iter(vectors.values()))), args.envs_per_worker),
+        "two_worker_speedup_lockstep": _speedup(vectors.get("grasp", next(iter(vectors.values()))),
+                                                args.envs_per_worker, grouped=False),
         "envs_per_worker": args.envs_per_worker,
         "single_process": single, "vector": vectors, "failed": failed, "cpu_count": os.cpu_count(),
         "load_average_1min_before_after": [round(load_before[0], 2), round(os.getloadavg()[0], 2)],

@@ -30,11 +30,13 @@ def test_env_throughput_reports_the_ratios_and_their_references():
     assert all(r["raw_replays_env_exactly"] for r in result["single_process"].values())  # Same physics timed.
     vector = result["vector"]["grasp"]
     assert result["envs_per_worker"] == 2
-    assert result["two_worker_speedup"] == vector["two_worker_speedup_2_envs_per_worker"]
+    assert result["two_worker_speedup"] == vector["two_worker_speedup_grouped_2_envs_per_worker"]
+    assert result["two_worker_speedup_lockstep"] == vector["two_worker_speedup_2_envs_per_worker"]
+    assert vector["workers_2_grouped_2_envs_per_worker_steps_per_s"] > 0 and vector["grouped_rollout_horizon"] == 8
     assert vector["two_worker_speedup_1_env_per_worker"] > 0 and result["two_worker_speedup"] > 0
     assert vector["workers_2_2_envs_per_worker_steps_per_s"] > 0
     assert vector["weak_scaling_speedup_2_envs_per_worker"] > 0
-    assert set(vector["other_processes_busy_cores"]) == {"1x2", "2x1", "1x4", "2x2"}  # 1 x 2k against 2 x k
+    assert set(vector["other_processes_busy_cores"]) == {"1x2", "2x1", "1x4", "2x2", "grouped"}
     assert 1.0 <= vector["sync_bound_speedup"] <= 2.0  # max(t0, t1) lies between the mean and the sum
     assert vector["raw_two_process_speedup"] > 0
 

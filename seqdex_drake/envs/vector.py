@@ -29,6 +29,8 @@ import sys
 import time
 import traceback
 
+import numpy as np
+
 from seqdex_drake.envs.vector_base import EnvWorker, VectorEnvBase, WorkerError
 from seqdex_drake.tasks.base import TaskConfig
 
@@ -120,6 +122,7 @@ class ProcessVectorEnv(VectorEnvBase):
         self._remotes, self._processes = [None] * self.num_workers, [None] * self.num_workers
         self._pending: list[list] = [[] for _ in range(self.num_workers)]  # Requests not yet sent, per process.
         self._broken = [False] * self.num_workers  # Died, hung or lost its pipe: killed at the next restart.
+        self._in_flight: dict[int, tuple[list, dict]] = {}  # Step group -> (batch sent, failures): step_async.
         self._context = mp.get_context(start_method)
         if start_method == "forkserver":
             self._context.set_forkserver_preload(FORKSERVER_PRELOAD)
@@ -149,6 +152,9 @@ class ProcessVectorEnv(VectorEnvBase):
 
     def _request(self, index: int, command: str, data) -> None:
         worker = self._worker_of(index)
+        if worker in self._in_flight:
+            raise RuntimeError(f"env {index}'s step group {worker} is still stepping (step_async); collect it with "
+                               "step_wait() before calling reset, step or get_states")
         if self._processes[worker] is None or self._broken[worker]:
             raise WorkerError(index, f"its worker process {worker} failed earlier and was not restarted")
         self._pending[worker].append((index, command, data))
@@ -158,29 +164,99 @@ class ProcessVectorEnv(VectorEnvBase):
         deadline = time.monotonic() + self.timeout
         sent, answers = {}, {}
         for worker, batch in enumerate(self._pending):
-            if not batch:
-                continue
-            self._pending[worker] = []
-            try:
-                self._remotes[worker].send(batch)
-                sent[worker] = batch
-            except (BrokenPipeError, OSError) as error:
-                process = self._processes[worker]
-                process.join(timeout=1.0)  # A broken pipe usually means the worker died: say how.
-                status = _exit_description(process.exitcode) if process.exitcode is not None else "still running"
-                self._broken[worker] = True
-                for index, command, _ in batch:
-                    answers[index] = WorkerError(index, f"could not send '{command}' ({error}); the worker "
-                                                        f"process: {status}")
+            if batch:
+                sent[worker], failures = self._send(worker)
+                answers.update(failures)
         for worker, batch in sent.items():
-            reply = self._receive(worker, deadline)
-            for index, _, _ in batch:
-                if isinstance(reply, str):  # The process failed: every env it hosts did.
-                    answers[index] = WorkerError(index, reply)
-                else:
-                    status, payload = reply[index]
-                    answers[index] = WorkerError(index, payload) if status == "error" else payload
+            if batch:
+                answers.update(self._reply_answers(batch, self._receive(worker, deadline)))
         return {index: answers[index] for index in indices}
+
+    def _send(self, worker: int) -> tuple[list, dict]:
+        """Sends process ``worker`` its pending requests as one message: (the batch sent, or [] if the send
+        failed, and the WorkerErrors of a failed send)."""
+        batch, self._pending[worker] = self._pending[worker], []
+        try:
+            self._remotes[worker].send(batch)
+            return batch, {}
+        except (BrokenPipeError, OSError) as error:
+            process = self._processes[worker]
+            process.join(timeout=1.0)  # A broken pipe usually means the worker died: say how.
+            status = _exit_description(process.exitcode) if process.exitcode is not None else "still running"
+            self._broken[worker] = True
+            return [], {index: WorkerError(index, f"could not send '{command}' ({error}); the worker process: "
+                                                  f"{status}") for index, command, _ in batch}
+
+    @staticmethod
+    def _reply_answers(batch: list, reply) -> dict:
+        """The answers to ``batch`` in a process's ``reply`` (a dict, or a string saying why none came)."""
+        answers = {}
+        for index, _, _ in batch:
+            if isinstance(reply, str):  # The process failed: every env it hosts did.
+                answers[index] = WorkerError(index, reply)
+            else:
+                status, payload = reply[index]
+                answers[index] = WorkerError(index, payload) if status == "error" else payload
+        return answers
+
+    # ---------------------------------------------------------------------------- asynchronous groups
+    @property
+    def step_groups(self) -> list[list[int]]:
+        """The envs of each worker process, in env order: what :meth:`step_async` steps together."""
+        k = self.envs_per_worker
+        return [list(range(w * k, min((w + 1) * k, self.num_envs))) for w in range(self.num_workers)]
+
+    def step_async(self, group: int, actions) -> None:
+        """Starts a step of the envs of ``step_groups[group]`` (one worker process) with ``actions``, one row
+        per env of the group, and returns at once; :meth:`step_wait` returns its results. Other groups can step
+        meanwhile: a learner can act on one worker's observations and send it its next step while the other
+        workers are still stepping, instead of waiting for the slowest at every step."""
+        self._check_open()
+        if not self._reset_once:
+            raise RuntimeError("call reset() before step_async()")
+        if not 0 <= group < self.num_workers:
+            raise IndexError(f"step group {group} out of range for {self.num_workers} groups")
+        if group in self._in_flight:
+            raise RuntimeError(f"step group {group} is already stepping; collect it with step_wait() first")
+        indices, actions = self.step_groups[group], np.asarray(actions)
+        if len(actions) != len(indices):
+            raise ValueError(f"expected {len(indices)} actions for step group {group}, got {len(actions)}")
+        failures = {}
+        for index, action in zip(indices, actions, strict=True):
+            try:
+                self._request(index, "step", action)
+            except WorkerError as error:
+                failures[index] = error
+        batch = []
+        if self._pending[group]:
+            batch, send_failures = self._send(group)
+            failures.update(send_failures)
+        self._in_flight[group] = (batch, failures)
+
+    def step_wait(self):
+        """Waits for the first step group (of those started with :meth:`step_async`) whose results are in.
+
+        Returns:
+            ``(group, (observations, rewards, terminated, truncated, infos))``, the results as
+            :meth:`~seqdex_drake.envs.vector_base.VectorEnvBase.step` gives them for the group's envs, in the
+            order of ``step_groups[group]`` (autoreset, failures and restarts alike).
+        """
+        self._check_open()
+        if not self._in_flight:
+            raise RuntimeError("no step group is stepping; start one with step_async()")
+        deadline = time.monotonic() + self.timeout
+        ready = [group for group, (batch, _) in self._in_flight.items() if not batch]  # Nothing to wait for.
+        if not ready:
+            waiting = {self._remotes[group]: group for group in self._in_flight}
+            waiting.update({self._processes[group].sentinel: group for group in self._in_flight})
+            found = mp.connection.wait(list(waiting), timeout=max(0.0, deadline - time.monotonic()))
+            ready = sorted({waiting[handle] for handle in found}) or [min(self._in_flight)]  # Timeout: report it.
+        group = ready[0]
+        batch, answers = self._in_flight.pop(group)
+        if batch:
+            answers.update(self._reply_answers(batch, self._receive(group, deadline)))
+        indices = self.step_groups[group]
+        return group, self._finish_step(indices, answers)
 
     def _receive(self, worker: int, deadline: float):
         """Process ``worker``'s next answer (a dict), or a description of why none came (death or timeout)."""

@@ -252,6 +252,12 @@ class VectorEnvBase:
         if len(actions) != self.num_envs:
             raise ValueError(f"expected {self.num_envs} actions (one row per env), got {len(actions)}")
         answers = self._call(range(self.num_envs), "step", lambda index: actions[index])  # Envs check shapes.
+        return self._finish_step(range(self.num_envs), answers)
+
+    def _finish_step(self, indices, answers: dict):
+        """The step results of envs ``indices`` (in that order) from their ``answers`` (payloads or
+        WorkerErrors): failed workers are restarted (or the env closed and the error raised, see the module
+        docstring) and their lost episodes reported as truncations."""
         recovered = self._recover(answers, lambda index: (self._restart_seed(index), None))
         for index, ((observation, reset_info), error) in recovered.items():
             self.lost_episodes += 1
@@ -259,12 +265,18 @@ class VectorEnvBase:
             answers[index] = (observation, 0.0, False, True, dict(
                 info, final_info=dict(info), final_observation=self._last_observations[index].copy(),
                 reset_info=reset_info))
-        observations, rewards, terminated, truncated, infos = zip(*(answers[i] for i in range(self.num_envs)),
-                                                                  strict=True)
+        observations, rewards, terminated, truncated, infos = zip(*(answers[i] for i in indices), strict=True)
         observations = np.stack(observations)
-        self._last_observations = observations.copy()
+        self._last_observations[list(indices)] = observations
         return (observations, np.array(rewards, dtype=np.float64), np.array(terminated, dtype=bool),
                 np.array(truncated, dtype=bool), list(infos))
+
+    @property
+    def step_groups(self) -> list[list[int]]:
+        """The envs that step together, one group per worker message. Backends that can step one group while
+        another is still running (``ProcessVectorEnv.step_async`` / ``step_wait``) have one group per worker
+        process; here, a single group of every env."""
+        return [list(range(self.num_envs))]
 
     def get_states(self) -> list:
         """Each env's restorable :class:`~seqdex_drake.envs.subtask_env.EnvState`, in env order."""

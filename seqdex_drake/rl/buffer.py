@@ -110,6 +110,19 @@ class RolloutBuffer:
             storage[t] = torch.as_tensor(value, dtype=storage.dtype, device=self.device)
         self.step += 1
 
+    def add_at(self, t: int, indices: list[int], obs, actions, log_probs, means, rewards, terminated, truncated,
+               values, final_values) -> None:
+        """Stores step ``t`` of envs ``indices`` only (leading dim ``len(indices)``), without advancing ``step``:
+        a rollout whose env groups step on their own (``PPO._collect_grouped``) sets ``step`` when all are in."""
+        if not 0 <= t < self.horizon:
+            raise IndexError(f"step {t} is outside the rollout's {self.horizon} steps")
+        rows = torch.as_tensor(indices, device=self.device)
+        for name, value in (("obs", obs), ("actions", actions), ("log_probs", log_probs), ("means", means),
+                            ("rewards", rewards), ("terminated", terminated), ("truncated", truncated),
+                            ("values", values), ("final_values", final_values)):
+            storage = getattr(self, name)
+            storage[t, rows] = torch.as_tensor(value, dtype=storage.dtype, device=self.device)
+
     def next_values(self, last_values: torch.Tensor) -> torch.Tensor:
         """V(s_{t+1}) within each episode: the next step's value, ``final_values`` where truncated, and
         ``last_values`` (the value of the observation after the rollout) for the last step."""

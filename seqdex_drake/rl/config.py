@@ -74,6 +74,12 @@ class PPOConfig:
     """Parallel environments (the release used 1024-2048 GPU envs; Drake workers are processes)."""
     horizon: int = 8
     """Environment steps per env per update (paper tables: 'episode-length' 8 or 20, the release's nsteps)."""
+    grouped_rollouts: bool = True
+    """With a vector env that steps its worker processes separately (``ProcessVectorEnv.step_async``), let each
+    worker's envs run through the rollout on their own: the policy acts on a worker's observations as soon as
+    they arrive and the workers meet only at the end of the rollout, instead of waiting for the slowest worker at
+    every step. The same seed gives the same rollout either way of arrival (the action noise of the whole rollout
+    is drawn up front); the numbers differ from the lock-step rollout's (False), which draws it step by step."""
     num_epochs: int = 5
     """Passes over each rollout per update (paper: 5, 10 for the orienting tasks, 2 for Grasp and Insert)."""
     num_minibatches: int = 4

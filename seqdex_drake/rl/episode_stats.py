@@ -35,21 +35,24 @@ class EpisodeStats:
         self._running_return = np.zeros(num_envs)
         self._running_length = np.zeros(num_envs, dtype=np.int64)
 
-    def record_step(self, rewards, terminated, truncated, infos: list[dict]) -> None:
-        """Accounts one vector step (after autoreset: ``infos`` are those of the step just taken)."""
-        self._running_return += rewards
-        self._running_length += 1
+    def record_step(self, rewards, terminated, truncated, infos: list[dict], indices=None) -> None:
+        """Accounts one vector step (after autoreset: ``infos`` are those of the step just taken), of every env
+        or, with ``indices``, of those envs only (the arrays and infos then follow ``indices``' order)."""
+        envs = range(self.num_envs) if indices is None else indices
+        self._running_return[list(envs)] += rewards
+        self._running_length[list(envs)] += 1
         for info in infos:
             for key, value in info.items():
                 if key.startswith("reward/"):
                     self._term_sums[key] = self._term_sums.get(key, 0.0) + float(value)
                     self._term_counts[key] = self._term_counts.get(key, 0) + 1
-        for index in np.flatnonzero(np.logical_or(terminated, truncated)):
+        for k in np.flatnonzero(np.logical_or(terminated, truncated)):
+            index = envs[k]
             self.returns.append(float(self._running_return[index]))
             self.lengths.append(int(self._running_length[index]))
             self._rollout_returns.append(float(self._running_return[index]))
-            if "success" in infos[index]:
-                self.successes.append(float(bool(infos[index]["success"])))
+            if "success" in infos[k]:
+                self.successes.append(float(bool(infos[k]["success"])))
             self.num_episodes += 1
             self._running_return[index] = 0.0
             self._running_length[index] = 0

@@ -122,14 +122,17 @@ class PPO:
         return array
 
     @torch.no_grad()
-    def act(self, obs: torch.Tensor, deterministic: bool = False):
-        """Actions [n, a] (sampled, or the mean), their log-probabilities [n], the means [n, a], values [n]."""
+    def act(self, obs: torch.Tensor, deterministic: bool = False, noise: torch.Tensor | None = None):
+        """Actions [n, a] (sampled, or the mean), their log-probabilities [n], the means [n, a], values [n].
+        ``noise``: the standard normal draws [n, a] to sample with (default: drawn now from the generator)."""
         means = self.model.action_mean(obs)
         std, free = self.model.log_std.exp(), self.model.free_actions
         if deterministic:
             actions = means
         else:
-            noise = torch.randn(means.shape, generator=self.generator).to(self.device)
+            if noise is None:
+                noise = torch.randn(means.shape, generator=self.generator)
+            noise = noise.to(self.device)
             actions = means + std * noise * free  # Fixed dims stay at their value (see ActorCritic).
         log_probs = (torch.distributions.Normal(means, std).log_prob(actions) * free).sum(-1)
         return actions, log_probs, means, self.model.value(obs)
@@ -162,30 +165,73 @@ class PPO:
         if self.buffer is None or (self.buffer.horizon, self.buffer.num_envs) != (steps, num_envs):
             self.buffer = RolloutBuffer(steps, num_envs, self.obs_dim, self.action_dim, device=self.device)
         self.buffer.reset(self.model.log_std)
-        for _ in range(steps):
-            obs = self._next_obs
-            actions, log_probs, means, values = self.act(obs)
-            next_obs, rewards, terminated, truncated, infos = vec_env.step(self._env_actions(actions))
-            next_obs, rewards = self._finite(next_obs), self._finite(np.asarray(rewards, dtype=np.float64))
-            terminated, truncated = np.asarray(terminated, dtype=bool), np.asarray(truncated, dtype=bool)
-            final_values = torch.zeros(num_envs, device=self.device)
-            bootstrap = np.flatnonzero(truncated & ~terminated)
-            if len(bootstrap):
-                if any("final_observation" not in infos[i] for i in bootstrap):
-                    raise KeyError("a truncated episode's info lacks 'final_observation'; the vector env must "
-                                   "autoreset SB3-style (see seqdex_drake.envs.vector)")
-                final_obs = self._tensor(self._finite(np.stack([infos[i]["final_observation"] for i in bootstrap])))
-                with torch.no_grad():
-                    final_values[torch.as_tensor(bootstrap, device=self.device)] = self.model.value(final_obs)
-            self.buffer.add(obs, actions, log_probs, means, rewards, terminated, truncated, values, final_values)
-            self.stats.record_step(rewards, terminated, truncated, infos)
-            self._next_obs = self._tensor(next_obs)
-            self.global_step += num_envs
+        self._next_obs = self._next_obs.clone()  # Updated in place below, env by env.
+        groups = getattr(vec_env, "step_groups", None) if hasattr(vec_env, "step_async") else None
+        if self.config.grouped_rollouts and groups is not None and len(groups) > 1:
+            self._collect_grouped(vec_env, steps, groups)
+        else:
+            for _ in range(steps):
+                obs = self._next_obs
+                actions, log_probs, means, values = self.act(obs)
+                results = vec_env.step(self._env_actions(actions))
+                self._record(range(num_envs), self.buffer.step, obs, actions, log_probs, means, values, results)
+                self.buffer.step += 1
+        self.global_step += num_envs * steps
         metrics = self.stats.rollout_metrics()
         metrics["charts/nonfinite_env_values"] = float(self.nonfinite_values)
         if hasattr(vec_env, "lost_episodes"):  # Episodes cut short by a restarted worker (envs.vector_base).
             metrics["charts/lost_episodes"] = float(vec_env.lost_episodes)
         return metrics
+
+    def _collect_grouped(self, vec_env, steps: int, groups: list[list[int]]) -> None:
+        """The rollout with each step group (worker) stepping on its own: the policy acts on a group's
+        observations as soon as they arrive and sends it its next step. The action noise of the whole rollout
+        is drawn up front and the episode bookkeeping replayed in (step, group) order, so the rollout does not
+        depend on the order in which the groups arrive."""
+        noise = torch.randn((steps, self._next_obs.shape[0], self.action_dim), generator=self.generator)
+        progress, acted, records = [0] * len(groups), {}, []
+
+        def launch(group: int) -> None:
+            index = torch.as_tensor(groups[group])
+            obs = self._next_obs[index.to(self.device)]
+            acted[group] = (obs, *self.act(obs, noise=noise[progress[group], index]))
+            vec_env.step_async(group, self._env_actions(acted[group][1]))
+
+        for group in range(len(groups)):
+            launch(group)
+        while acted:
+            group, results = vec_env.step_wait()
+            t = progress[group]
+            records.append((t, group, results[1:]))
+            self._record(groups[group], t, *acted.pop(group), results, stats=False)
+            progress[group] += 1
+            if progress[group] < steps:
+                launch(group)
+        self.buffer.step = steps
+        for _, group, (rewards, terminated, truncated, infos) in sorted(records, key=lambda r: r[:2]):
+            self.stats.record_step(self._finite(np.asarray(rewards, dtype=np.float64)), terminated, truncated,
+                                   infos, indices=groups[group])
+
+    def _record(self, indices, t: int, obs, actions, log_probs, means, values, results, stats: bool = True) -> None:
+        """Stores the step ``t`` of envs ``indices`` (the policy's side and the env's ``results``) in the buffer,
+        sets their next observations and, with ``stats``, accounts the step in the episode statistics."""
+        next_obs, rewards, terminated, truncated, infos = results
+        next_obs, rewards = self._finite(next_obs), self._finite(np.asarray(rewards, dtype=np.float64))
+        terminated, truncated = np.asarray(terminated, dtype=bool), np.asarray(truncated, dtype=bool)
+        final_values = torch.zeros(len(indices), device=self.device)
+        bootstrap = np.flatnonzero(truncated & ~terminated)
+        if len(bootstrap):
+            if any("final_observation" not in infos[i] for i in bootstrap):
+                raise KeyError("a truncated episode's info lacks 'final_observation'; the vector env must "
+                               "autoreset SB3-style (see seqdex_drake.envs.vector)")
+            final_obs = self._tensor(self._finite(np.stack([infos[i]["final_observation"] for i in bootstrap])))
+            with torch.no_grad():
+                final_values[torch.as_tensor(bootstrap, device=self.device)] = self.model.value(final_obs)
+        self.buffer.add_at(t, list(indices), obs, actions, log_probs, means, rewards, terminated, truncated, values,
+                           final_values)
+        if stats:
+            self.stats.record_step(rewards, terminated, truncated, infos)
+        self._next_obs[torch.as_tensor(list(indices), device=self.device)] = self._tensor(next_obs)
 
     # ------------------------------------------------------------------------------------------ update
     def _set_learning_rate(self, learning_rate: float) -> None:
