@@ -7,7 +7,9 @@ clipped value loss, entropy and bounds terms, gradient clipping and the KL-adapt
 
 Vector env API (``seqdex_drake.envs.vector.ProcessVectorEnv``, ``seqdex_drake.rl.toy_env.TargetVectorEnv``):
 ``reset(seed=...) -> (obs[n, d], infos)``, ``step(actions[n, a]) -> obs, rewards, terminated, truncated, infos``
-with automatic reset; a finished episode's last observation is ``info["final_observation"]``.
+with automatic reset; a finished episode's last observation is ``info["final_observation"]``. A vector env
+that also has ``step_groups`` / ``step_async`` / ``step_wait`` (``ProcessVectorEnv``) is stepped group by group
+(``PPOConfig.grouped_rollouts``): each worker's envs go on as soon as the policy has acted on them.
 
 Observation normalization: the statistics stay fixed during a rollout and its update (so the update's first
 probability ratios are exactly 1) and absorb the rollout's observations after the gradient steps.
@@ -202,19 +204,18 @@ class PPO:
         while acted:
             group, results = vec_env.step_wait()
             t = progress[group]
-            records.append((t, group, results[1:]))
-            self._record(groups[group], t, *acted.pop(group), results, stats=False)
+            records.append((t, group, self._record(groups[group], t, *acted.pop(group), results, stats=False)))
             progress[group] += 1
             if progress[group] < steps:
                 launch(group)
         self.buffer.step = steps
-        for _, group, (rewards, terminated, truncated, infos) in sorted(records, key=lambda r: r[:2]):
-            self.stats.record_step(self._finite(np.asarray(rewards, dtype=np.float64)), terminated, truncated,
-                                   infos, indices=groups[group])
+        for _, group, step in sorted(records, key=lambda record: record[:2]):
+            self.stats.record_step(*step, indices=groups[group])
 
-    def _record(self, indices, t: int, obs, actions, log_probs, means, values, results, stats: bool = True) -> None:
+    def _record(self, indices, t: int, obs, actions, log_probs, means, values, results, stats: bool = True) -> tuple:
         """Stores the step ``t`` of envs ``indices`` (the policy's side and the env's ``results``) in the buffer,
-        sets their next observations and, with ``stats``, accounts the step in the episode statistics."""
+        sets their next observations and, with ``stats``, accounts the step in the episode statistics. Returns
+        what the statistics take: (rewards made finite, terminated, truncated, infos)."""
         next_obs, rewards, terminated, truncated, infos = results
         next_obs, rewards = self._finite(next_obs), self._finite(np.asarray(rewards, dtype=np.float64))
         terminated, truncated = np.asarray(terminated, dtype=bool), np.asarray(truncated, dtype=bool)
@@ -232,6 +233,7 @@ class PPO:
         if stats:
             self.stats.record_step(rewards, terminated, truncated, infos)
         self._next_obs[torch.as_tensor(list(indices), device=self.device)] = self._tensor(next_obs)
+        return rewards, terminated, truncated, infos
 
     # ------------------------------------------------------------------------------------------ update
     def _set_learning_rate(self, learning_rate: float) -> None:
