@@ -100,14 +100,9 @@ class RolloutBuffer:
         """Stores one step of every env (tensors or arrays with leading dim ``num_envs``)."""
         if self.full:
             raise RuntimeError(f"rollout buffer is full ({self.horizon} steps); call reset() first")
-        t = self.step
-        for name, value in (("obs", obs), ("actions", actions), ("log_probs", log_probs), ("means", means),
-                            ("rewards", rewards), ("terminated", terminated), ("truncated", truncated),
-                            ("values", values), ("final_values", final_values), ("critic_obs", critic_obs)):
-            storage = getattr(self, name)
-            if storage is None:
-                continue
-            storage[t] = torch.as_tensor(value, dtype=storage.dtype, device=self.device)
+        self._store(self.step, slice(None), obs=obs, actions=actions, log_probs=log_probs, means=means,
+                    rewards=rewards, terminated=terminated, truncated=truncated, values=values,
+                    final_values=final_values, critic_obs=critic_obs)
         self.step += 1
 
     def add_at(self, t: int, indices: list[int], obs, actions, log_probs, means, rewards, terminated, truncated,
@@ -116,12 +111,16 @@ class RolloutBuffer:
         a rollout whose env groups step on their own (``PPO._collect_grouped``) sets ``step`` when all are in."""
         if not 0 <= t < self.horizon:
             raise IndexError(f"step {t} is outside the rollout's {self.horizon} steps")
-        rows = torch.as_tensor(indices, device=self.device)
-        for name, value in (("obs", obs), ("actions", actions), ("log_probs", log_probs), ("means", means),
-                            ("rewards", rewards), ("terminated", terminated), ("truncated", truncated),
-                            ("values", values), ("final_values", final_values)):
+        self._store(t, torch.as_tensor(indices, device=self.device), obs=obs, actions=actions, log_probs=log_probs,
+                    means=means, rewards=rewards, terminated=terminated, truncated=truncated, values=values,
+                    final_values=final_values)
+
+    def _store(self, t: int, rows, **values) -> None:
+        """Writes each named value into row(s) ``rows`` of step ``t`` of its storage (skipping absent storage)."""
+        for name, value in values.items():
             storage = getattr(self, name)
-            storage[t, rows] = torch.as_tensor(value, dtype=storage.dtype, device=self.device)
+            if storage is not None:
+                storage[t, rows] = torch.as_tensor(value, dtype=storage.dtype, device=self.device)
 
     def next_values(self, last_values: torch.Tensor) -> torch.Tensor:
         """V(s_{t+1}) within each episode: the next step's value, ``final_values`` where truncated, and
