@@ -27,6 +27,10 @@ import numpy as np
 #: Stage budgets (control ticks) and simulated seconds under --test.
 TEST_STAGE_STEPS = 6
 TEST_SECONDS = 1.0
+#: Meshcat's ports: Drake aborts the process for a privileged one (below 1024); above 65535 would wrap.
+MIN_PORT, MAX_PORT = 1024, 65535
+#: The repository's shipped checkpoints, one folder per task family (``seqdex_drake/chaining/shipped.py``).
+SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints"
 
 
 def parse_args(argv=None):
@@ -34,13 +38,17 @@ def parse_args(argv=None):
     parser.add_argument("--task", choices=["building_blocks", "tool_positioning"], default="building_blocks")
     parser.add_argument("--manual", default="small_wall",
                         help="assembly manual: a YAML file or a name in diagrams/manuals/ (default: small_wall)")
-    parser.add_argument("--checkpoints", metavar="RUN_DIR", help="chain run directory (default: all untrained)")
+    parser.add_argument("--checkpoints", metavar="DIR",
+                        help="chain run directory or shipped checkpoint folder (default: checkpoints/<task> where "
+                             "shipped, else all untrained)")
+    parser.add_argument("--untrained", action="store_true", help="run untrained policies even where shipped")
     parser.add_argument("--seed", type=int, default=0, help="random seed (pile, tool yaw, untrained policies)")
     parser.add_argument("--max-switches", type=int, default=3, help="feasibility switches per object (default 3)")
     parser.add_argument("--duration", type=float, default=float("inf"),
                         help="stop after this many simulated seconds (default: when the manual is done)")
     parser.add_argument("--headless", action="store_true", help="no meshcat")
-    parser.add_argument("--port", type=int, default=7000, help="meshcat port; a busy one falls back to a free one")
+    parser.add_argument("--port", type=int, default=7000,
+                        help=f"meshcat port, {MIN_PORT}-{MAX_PORT}; a busy one falls back to a free one")
     parser.add_argument("--record", metavar="HTML", help="save a standalone HTML replay of the run")
     parser.add_argument("--test", action="store_true",
                         help=f"a short run for CI: {TEST_SECONDS} s simulated, {TEST_STAGE_STEPS}-tick stages, "
@@ -76,17 +84,44 @@ def objects_to_run(args, runner, rng):
              lambda step=step: runner.start_block(step.block_type, goal_vector(step))) for k, step in enumerate(steps)]
 
 
+def check_args(args) -> None:
+    """Refuses numbers out of range and a --record path that cannot be written, before anything is built."""
+    from seqdex_drake.cli import MAX_SEED, CliError, check_creatable
+
+    if not 0 <= args.seed <= MAX_SEED:
+        raise UserError(f"--seed must be in 0 .. {MAX_SEED}, got {args.seed}")
+    if not MIN_PORT <= args.port <= MAX_PORT:
+        raise UserError(f"--port must be in {MIN_PORT} .. {MAX_PORT}, got {args.port}")
+    if not args.duration > 0:
+        raise UserError(f"--duration must be > 0 simulated seconds, got {args.duration}")
+    if args.record:
+        try:
+            check_creatable(args.record, "--record")
+        except CliError as error:
+            raise UserError(str(error)) from error
+
+
 def run(args) -> int:
     from seqdex_drake.evaluation.runner import ChainRunError, ChainRunner, RunConfig
     from seqdex_drake.manual import LoadManual, ManualError
+    from seqdex_drake.scenario import ScenarioError
 
+    check_args(args)
     if args.task == "building_blocks":
         try:
             args.manual_steps = LoadManual(args.manual).steps
         except ManualError as error:
             raise UserError(str(error)) from error
+        except (OSError, UnicodeDecodeError) as error:  # A directory, an unreadable or a binary file.
+            reason = "not a text file" if isinstance(error, UnicodeDecodeError) else (error.strerror or error)
+            raise UserError(f"--manual {args.manual}: cannot read it as a YAML assembly manual ({reason})") from error
     if args.checkpoints is not None and not Path(args.checkpoints).is_dir():
         raise UserError(f"checkpoint directory {args.checkpoints} does not exist")
+    shipped = SHIPPED / args.task
+    if args.checkpoints is None and not args.untrained and (shipped / "manifest.json").is_file():
+        args.checkpoints = str(shipped)
+        print(f"using the shipped checkpoints in {shipped} (--checkpoints DIR for others, --untrained for none)",
+              flush=True)
     meshcat = None if args.headless else start_meshcat(args.port)
     if meshcat is not None:
         meshcat.SetCameraPose([1.45, -0.25, 1.35], [0.15, -0.05, 0.62])
@@ -98,7 +133,7 @@ def run(args) -> int:
     print(f"building the {args.task} station and chain controller ...", flush=True)
     try:
         runner = ChainRunner(config, meshcat=meshcat)
-    except ChainRunError as error:
+    except (ChainRunError, ScenarioError) as error:
         raise UserError(str(error)) from error
     print(f"chain: {' -> '.join(runner.tasks)}", flush=True)
     if runner.untrained:
@@ -151,10 +186,11 @@ def run(args) -> int:
     print(f"simulated {runner.context.get_time():.2f} s in {wall:.1f} s wall; {successes} object(s) placed; "
           f"state finite: {finite}", flush=True)
     if args.record:
+        from seqdex_drake.atomic import atomic_write
+
         meshcat.StopRecording()
         meshcat.PublishRecording()
-        Path(args.record).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.record).write_text(meshcat.StaticHtml())
+        atomic_write(args.record, lambda file: file.write(meshcat.StaticHtml().encode()))
         print(f"replay written to {args.record} ({Path(args.record).stat().st_size / 1e6:.1f} MB)", flush=True)
     if meshcat is not None and not args.test and not interrupted:
         print(f"done; meshcat keeps serving at {meshcat.web_url()} until Ctrl-C", flush=True)

@@ -5,14 +5,25 @@ Public API::
     from seqdex_drake import LoadScenario, MakeStation
     scenario = LoadScenario("building_blocks/grasp")
     station = MakeStation(scenario, meshcat=None)
+
+    import gymnasium as gym
+    env = gym.make("seqdex/Grasp-v0")          # every sub-task: seqdex_drake.envs.registration.GYM_IDS
+
+    from seqdex_drake import load_policy
+    policy = load_policy("runs/grasp/last.pt")  # numpy observation(s) in, action(s) out
 """
 
+from seqdex_drake.envs import registration as _registration
 from seqdex_drake.scenario import LoadScenario, Scenario, ScenarioError, ScenarioNames
 from seqdex_drake.station import CANONICAL_JOINTS, MakeControllerPlant, MakeStation, RefreshSampledOutputs
+
+# The sub-task envs' gymnasium ids (lazy entry points: nothing is built until gym.make).
+_registration.register_envs()
 
 #: Exported lazily (PEP 562): the chain controller needs torch, which ``import seqdex_drake.<module>`` must not load.
 _CHAIN_EXPORTS = ("ChainParams", "ConnectChainController", "LoadChainCheckpoints", "MakeChainController",
                   "SetChainTarget")
+_POLICY_EXPORTS = ("load_policy", "Policy")
 
 
 def __getattr__(name: str):
@@ -20,6 +31,10 @@ def __getattr__(name: str):
         from seqdex_drake.systems import chain_controller
 
         return getattr(chain_controller, name)
+    if name in _POLICY_EXPORTS:  # Needs torch too.
+        from seqdex_drake.rl import policy_loading
+
+        return getattr(policy_loading, name)
     raise AttributeError(f"module 'seqdex_drake' has no attribute {name!r}")
 
 __all__ = [
@@ -29,8 +44,10 @@ __all__ = [
     "LoadChainCheckpoints",
     "MakeChainController",
     "LoadScenario",
+    "load_policy",
     "MakeControllerPlant",
     "MakeStation",
+    "Policy",
     "RefreshSampledOutputs",
     "Scenario",
     "ScenarioError",

@@ -11,6 +11,7 @@ import dataclasses
 import math
 from pathlib import Path
 
+import numpy as np
 import yaml
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 from pydrake.multibody.parsing import ModelDirective
@@ -204,22 +205,67 @@ def LoadScenario(scenario_name: str, filename: str | Path | None = None,
     try:
         scenario = yaml_load_typed(schema=Scenario, filename=str(path), child_name=name,
                                    defaults=Scenario())
-    except RuntimeError as error:
-        raise ScenarioError(f"invalid scenario '{name}' in {path}: {error}") from error
+    except Exception as error:  # noqa: BLE001 - Drake's typed loader raises several types for bad values.
+        raise ScenarioError(f"invalid scenario '{name}' in {path}: {_reason(error)}") from error
     try:
         _parse_yaml(scenario_text)
     except yaml.YAMLError as error:
         raise ScenarioError(f"malformed YAML in scenario override: {error}") from error
     try:
         scenario = yaml_load_typed(schema=Scenario, data=scenario_text, defaults=scenario)
-    except RuntimeError as error:
-        raise ScenarioError(f"invalid scenario override {scenario_text!r}: {error}") from error
-    _validate(scenario, f"{path}:{name}")
+    except Exception as error:  # noqa: BLE001 - e.g. ValueError for random_seed: "abc", AssertionError for a
+        # number where a mapping belongs; every one is a mistake in the text.
+        raise ScenarioError(f"invalid scenario override {scenario_text!r}: {_reason(error)}") from error
+    _validate(scenario, f"{path}:{name}" if scenario_text.strip() in ("", "{}") else
+              f"{path}:{name} with override {scenario_text!r}")
     return scenario
 
 
+def _reason(error: Exception) -> str:
+    """The first line of ``error``'s message, with its type when the message alone says little."""
+    text = str(error).strip().splitlines()[0] if str(error).strip() else ""
+    if isinstance(error, AssertionError):  # pydrake's loader asserts the YAML node kind.
+        return f"a value of the wrong kind (a number or string where a mapping or list belongs?): {text}"
+    return text if isinstance(error, RuntimeError) else f"{type(error).__name__}: {text}"
+
+
+def _non_finite(value, path: str):
+    """(path, value) of the first NaN / infinite number in ``value`` (dataclasses, Drake configs, containers and
+    arrays are searched field by field), or None."""
+    if isinstance(value, bool | str | bytes) or value is None:
+        return None
+    if isinstance(value, int | float | np.integer | np.floating):
+        return None if math.isfinite(value) else (path, value)
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind in "fc" and not np.all(np.isfinite(value)):
+            return path, value.tolist()
+        return None
+    if dataclasses.is_dataclass(value):
+        children = [(field.name, getattr(value, field.name)) for field in dataclasses.fields(value)]
+    elif hasattr(type(value), "__fields__"):  # Drake's serializable config structs (MultibodyPlantConfig, ...).
+        children = [(field.name, getattr(value, field.name)) for field in type(value).__fields__]
+    elif isinstance(value, dict):
+        children = list(value.items())
+    elif isinstance(value, list | tuple):
+        children = [(f"[{index}]", item) for index, item in enumerate(value)]
+    else:
+        return None
+    for name, child in children:
+        found = _non_finite(child, f"{path}{name}" if name.startswith("[") or not path else f"{path}.{name}")
+        if found is not None:
+            return found
+    return None
+
+
 def _validate(scenario: Scenario, where: str) -> None:
-    if scenario.control_period <= 0 or not math.isfinite(scenario.control_period):
+    """Raises :class:`ScenarioError` for values no station can be built or stepped with (NaN / inf anywhere,
+    non-positive periods, negative gains, seeds or counts); the message names the field."""
+    found = _non_finite(scenario, "")
+    if found is not None:
+        raise ScenarioError(f"{where}: {found[0]} must be finite, got {found[1]}")
+    if scenario.random_seed < 0:
+        raise ScenarioError(f"{where}: random_seed must be >= 0, got {scenario.random_seed}")
+    if scenario.control_period <= 0:
         raise ScenarioError(f"{where}: control_period must be a positive number of seconds")
     if scenario.plant_config.time_step <= 0:
         raise ScenarioError(f"{where}: plant_config.time_step must be > 0 (the station uses a discrete plant)")
@@ -228,6 +274,18 @@ def _validate(scenario: Scenario, where: str) -> None:
         raise ScenarioError(f"{where}: plant_config.time_step must not exceed control_period")
     if scenario.object_layout not in ("pile", "parked"):
         raise ScenarioError(f"{where}: object_layout must be 'pile' or 'parked', not '{scenario.object_layout}'")
+    robot, freeze = scenario.robot, scenario.freeze
+    for name in ("arm_kp", "arm_kd", "hand_kp", "hand_kd", "hand_rotor_inertia"):
+        if getattr(robot, name) < 0:
+            raise ScenarioError(f"{where}: robot.{name} must be >= 0, got {getattr(robot, name)}")
+    if len(robot.arm_home) != 7:
+        raise ScenarioError(f"{where}: robot.arm_home must hold the 7 Franka joint positions, got "
+                            f"{len(robot.arm_home)}")
+    for name in ("active_radius", "wake_radius", "wake_speed", "sleep_speed", "sleep_ticks"):
+        if getattr(freeze, name) < 0:
+            raise ScenarioError(f"{where}: freeze.{name} must be >= 0, got {getattr(freeze, name)}")
+    if freeze.mass_scale <= 0:
+        raise ScenarioError(f"{where}: freeze.mass_scale must be > 0, got {freeze.mass_scale}")
 
 
 def DumpScenario(scenario: Scenario) -> str:

@@ -1,6 +1,6 @@
 """The station: one Diagram holding the Franka + Allegro, fixtures and objects of a scenario.
 
-``MakeStation(scenario, meshcat=None)`` returns a Diagram whose exported ports are named
+``MakeStation(scenario, meshcat=None, name=None)`` returns a Diagram whose exported ports are named
 ``<model_instance>.<signal>``; outside code connects by name and never reaches inside:
 
 Inputs
@@ -14,12 +14,19 @@ Outputs
     :func:`RefreshSampledOutputs` (the environments and harnesses do).
     ``<object>.state`` for each loose object (quaternion pose and twist, 13).
     ``body_poses``, ``body_spatial_velocities``, ``contact_results``, ``query_object``, ``plant_state``.
-    ``<camera>.rgb_image`` / ``.depth_image_32f`` / ``.label_image`` for each configured camera.
+    ``<camera>.color_image`` / ``.depth_image_32f`` / ``.label_image`` for each configured camera (those it enables).
 
 The Franka receives gravity compensation (its joints' gravity torques with the hand attached).
 :func:`MakeControllerPlant` builds, from the same directives, the plant an operational-space controller
 needs: the Franka with the Allegro welded on and frozen. Keep a Python reference to it as long as any
 System uses it (pydrake does not keep it alive for C++ systems such as ``InverseDynamics``).
+
+Several stations in one diagram: give each its own ``name``. It names the Diagram (Drake requires unique
+subsystem names) and prefixes the station's Meshcat paths (``/drake/<name>/illustration``, ``.../proximity``,
+``.../contact_forces``), so stations sharing one Meshcat keep separate scene trees instead of overwriting each
+other's (each can be hidden in Meshcat's controls). The model instances inside keep their names (``franka``,
+``allegro``, ``block_2``): each station has its own plant, and the code that drives a station looks its
+instances up in that plant by these names.
 """
 
 from __future__ import annotations
@@ -213,8 +220,8 @@ def AddArmGravityCompensation(builder: DiagramBuilder, plant: MultibodyPlant) ->
 
 def AddCamera(builder: DiagramBuilder, plant: MultibodyPlant, scene_graph: SceneGraph, name: str,
               camera: CameraConfig) -> RgbdSensor:
-    """Adds an RgbdSensor (no LCM) rendering with VTK; exports ``<name>.color_image``, ``.depth_image_32f``,
-    ``.label_image`` (those the config enables) and ``<name>.X_WC``-free pose via the sensor's body port."""
+    """Adds an RgbdSensor (no LCM) rendering with VTK; exports ``<name>.color_image``, ``<name>.depth_image_32f``
+    and ``<name>.label_image``, those the config enables (the camera's pose is not exported)."""
     renderer = camera.renderer_name
     if not scene_graph.HasRenderer(renderer):
         scene_graph.AddRenderer(renderer, MakeRenderEngineVtk(RenderEngineVtkParams()))
@@ -233,44 +240,68 @@ def AddCamera(builder: DiagramBuilder, plant: MultibodyPlant, scene_graph: Scene
     return sensor
 
 
+def CheckSystemName(name: str) -> str:
+    """Returns ``name`` if it can name a station or chain controller: a non-empty string with neither Drake's
+    system path separator ``::`` nor Meshcat's ``/`` (it becomes one Meshcat path element); else ValueError."""
+    if not isinstance(name, str) or not name or "::" in name or "/" in name:
+        raise ValueError(f"name must be a non-empty string without '::' or '/', got {name!r}")
+    return name
+
+
+def MeshcatPath(prefix: str | None, path: str) -> str:
+    """``<prefix>/<path>`` (``path`` itself when ``prefix`` is None): where a named system draws in Meshcat."""
+    return path if prefix is None else f"{prefix}/{path}"
+
+
 def AddMeshcatVisualization(builder: DiagramBuilder, plant: MultibodyPlant, scene_graph: SceneGraph, meshcat,
-                            config: VisualizationConfig) -> None:
+                            config: VisualizationConfig, prefix: str | None = None) -> None:
     """Meshcat visualizers per ``config`` (illustration, proximity, contacts), without any LCM traffic.
 
     ``pydrake.visualization.ApplyVisualizationConfig`` would also publish LCM (UDP multicast) messages for
-    drake-visualizer; the station only talks to the Meshcat given.
+    drake-visualizer; the station only talks to the Meshcat given. They draw at the Meshcat paths
+    ``illustration``, ``proximity`` and ``contact_forces`` (under ``/drake``), each below ``<prefix>/`` when
+    ``prefix`` is given.
     """
     if config.publish_illustration:
         MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, MeshcatVisualizerParams(
-            role=Role.kIllustration, publish_period=config.publish_period, prefix="illustration",
+            role=Role.kIllustration, publish_period=config.publish_period, prefix=MeshcatPath(prefix, "illustration"),
             delete_on_initialization_event=config.delete_on_initialization_event))
     if config.publish_proximity:
         MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, MeshcatVisualizerParams(
-            role=Role.kProximity, publish_period=config.publish_period, prefix="proximity",
+            role=Role.kProximity, publish_period=config.publish_period, prefix=MeshcatPath(prefix, "proximity"),
             default_color=config.default_proximity_color, initial_alpha=config.initial_proximity_alpha,
             visible_by_default=False, delete_on_initialization_event=config.delete_on_initialization_event))
     if config.publish_contacts:
         ContactVisualizer.AddToBuilder(builder, plant, meshcat, ContactVisualizerParams(
-            publish_period=config.publish_period, delete_on_initialization_event=config.delete_on_initialization_event))
+            publish_period=config.publish_period, prefix=MeshcatPath(prefix, ContactVisualizerParams().prefix),
+            delete_on_initialization_event=config.delete_on_initialization_event))
 
 
-def MakeStation(scenario: Scenario, meshcat=None) -> Diagram:
+def MakeStation(scenario: Scenario, meshcat=None, name: str | None = None) -> Diagram:
     """Builds the station Diagram for ``scenario`` (see the module docstring for its ports).
 
     Args:
         scenario: a loaded :class:`~seqdex_drake.scenario.Scenario`.
         meshcat: an optional ``pydrake.geometry.Meshcat``; when given, the scene is visualized.
+        name: the Diagram's name and the prefix of its Meshcat paths (``<name>/illustration``, ...); give each
+            station of one diagram its own. None: ``station_<task_family>_<subtask>``, unprefixed paths.
+
+    Raises:
+        ValueError: ``name`` is empty or contains ``::`` or ``/``.
+        ScenarioError: the scenario's models cannot be loaded or lack the robot.
     """
+    prefix = None if name is None else CheckSystemName(name)
+    diagram_name = prefix or f"station_{scenario.task_family}_{scenario.subtask}".rstrip("_")
     builder = DiagramBuilder()
     plant, scene_graph = AddStationPlant(builder, scenario)
 
-    for name in ROBOT_INSTANCES:
-        instance = plant.GetModelInstanceByName(name)
-        builder.ExportInput(plant.get_desired_state_input_port(instance), f"{name}.desired_state")
-        builder.ExportOutput(plant.get_state_output_port(instance), f"{name}.state")
-        builder.ExportOutput(plant.get_net_actuation_output_port(instance), f"{name}.net_actuation")
-    for name in scenario.objects:
-        builder.ExportOutput(plant.get_state_output_port(plant.GetModelInstanceByName(name)), f"{name}.state")
+    for robot in ROBOT_INSTANCES:
+        instance = plant.GetModelInstanceByName(robot)
+        builder.ExportInput(plant.get_desired_state_input_port(instance), f"{robot}.desired_state")
+        builder.ExportOutput(plant.get_state_output_port(instance), f"{robot}.state")
+        builder.ExportOutput(plant.get_net_actuation_output_port(instance), f"{robot}.net_actuation")
+    for loose in scenario.objects:
+        builder.ExportOutput(plant.get_state_output_port(plant.GetModelInstanceByName(loose)), f"{loose}.state")
 
     if scenario.robot.arm_gravity_compensation:
         AddArmGravityCompensation(builder, plant)
@@ -281,8 +312,8 @@ def MakeStation(scenario: Scenario, meshcat=None) -> Diagram:
 
     if scenario.cameras and scenario.low_poly_perception:
         UseLowPolyPerceptionGeometry(plant, scene_graph)
-    for name, camera in scenario.cameras.items():
-        AddCamera(builder, plant, scene_graph, name, camera)
+    for camera_name, camera in scenario.cameras.items():
+        AddCamera(builder, plant, scene_graph, camera_name, camera)
 
     builder.ExportOutput(plant.get_body_poses_output_port(), "body_poses")
     builder.ExportOutput(plant.get_body_spatial_velocities_output_port(), "body_spatial_velocities")
@@ -291,10 +322,10 @@ def MakeStation(scenario: Scenario, meshcat=None) -> Diagram:
     builder.ExportOutput(scene_graph.get_query_output_port(), "query_object")
 
     if meshcat is not None:
-        AddMeshcatVisualization(builder, plant, scene_graph, meshcat, scenario.visualization)
+        AddMeshcatVisualization(builder, plant, scene_graph, meshcat, scenario.visualization, prefix=prefix)
 
     diagram = builder.Build()
-    diagram.set_name(f"station_{scenario.task_family}_{scenario.subtask}".rstrip("_"))
+    diagram.set_name(diagram_name)
     return diagram
 
 

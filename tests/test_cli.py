@@ -15,7 +15,7 @@ import torch
 from seqdex_drake.chaining.terminal_buffer import TerminalBuffer
 from seqdex_drake.cli import TEST_EPISODE_LENGTH, observation_spec, task_config
 from seqdex_drake.cli.main import main
-from seqdex_drake.rl.config import PPOConfig
+from seqdex_drake.cli.train import TEST_HORIZON
 from seqdex_drake.tasks.registry import task_names
 
 
@@ -25,9 +25,10 @@ def _steps(path) -> int:
 
 @pytest.fixture(scope="module")
 def grasp_run(tmp_path_factory):
-    """A grasp run directory after ``seqdex train --task grasp --test`` (two envs, one update)."""
+    """A grasp run directory after ``seqdex train --task grasp --test --preset paper`` (two envs, one update)."""
     run_dir = tmp_path_factory.mktemp("cli") / "grasp"
-    assert main(["train", "--task", "grasp", "--test", "--run-dir", str(run_dir), "--num-envs", "2"]) == 0
+    assert main(["train", "--task", "grasp", "--test", "--run-dir", str(run_dir), "--num-envs", "2",
+                 "--preset", "paper"]) == 0
     return run_dir
 
 
@@ -147,7 +148,7 @@ def test_train_with_initial_states(tmp_path, capsys):
     assert main(["train", "--task", "tool_reorient", "--test", "--run-dir", str(run_dir), "--initial-states",
                  buffer]) == 0
     assert json.loads((run_dir / "config.json").read_text())["initial_states"] == buffer
-    assert _steps(run_dir / "last.pt") == 2 * PPOConfig.for_task("tool_reorient").horizon
+    assert _steps(run_dir / "last.pt") == 2 * TEST_HORIZON
     # A buffer for another task, a missing one (names the collect command), a first task of a chain.
     assert main(["train", "--task", "orient", "--test", "--run-dir", str(tmp_path / "o"), "--initial-states",
                  buffer]) == 2

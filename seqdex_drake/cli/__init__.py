@@ -5,12 +5,17 @@ holds the shared pieces: :class:`CliError` (a user-facing failure: message, exit
 sub-task chains, the task config a run uses (shortened episodes with ``--test``) and the observation spec
 recorded in terminal buffers.
 
-Exit codes: 0 success; 2 bad input (unknown task, missing or mismatched file, wrong flag combination);
-1 a failure while running (e.g. a simulator worker died).
+Exit codes: 0 success; 2 bad input (unknown task, missing or mismatched file, wrong flag combination, a number
+out of range, an output path that cannot be written, a run directory in use); 1 a failure while running (e.g. a
+simulator worker died); 128 + N a training stopped by signal N after saving its checkpoint (130 Ctrl-C, 143
+SIGTERM).
 """
 
 import dataclasses
 import json
+import os
+import tempfile
+from pathlib import Path
 
 from seqdex_drake.tasks.registry import observation_spec  # noqa: F401 (re-exported for the subcommands)
 
@@ -44,12 +49,52 @@ class CliError(Exception):
         self.code = code
 
 
-def task_config(task: str, test: bool):
-    """The :class:`~seqdex_drake.tasks.base.TaskConfig` of a run: the task's default, with episodes cut to
-    :data:`TEST_EPISODE_LENGTH` steps under ``--test``."""
-    from seqdex_drake.tasks.registry import default_config
+#: Seeds are used as numpy seeds (``seed + env index``, ``seed + step``): non-negative, within 32 bits.
+MAX_SEED = 2**32 - 1
 
-    config = default_config(task)
+
+def check_seed(seed: int, flag: str = "--seed") -> None:
+    """Raises :class:`CliError` unless ``0 <= seed <= MAX_SEED``."""
+    if not 0 <= seed <= MAX_SEED:
+        raise CliError(f"{flag} must be in 0 .. {MAX_SEED}, got {seed}")
+
+
+def check_creatable(path: str | os.PathLike, flag: str, directory: bool = False) -> None:
+    """Raises :class:`CliError` unless a file (``directory``: a directory) can be written at ``path``.
+
+    Checked up front and creating nothing: an existing ``path`` must be of the right kind, the nearest existing
+    ancestor must be a directory (not a file), and a temporary file must be creatable in it (a real test, so
+    read-only file systems and permissions count, also for root). Files are written atomically (a temporary file
+    next to them, then a rename), so a file's directory must be writable, not the file itself.
+    """
+    path = nearest = Path(path)
+    try:
+        if path.is_dir() and not directory:
+            raise CliError(f"{flag} {path} is a directory; name a file")
+        if path.exists() and directory and not path.is_dir():
+            raise CliError(f"{flag} {path} is a file, not a directory; pick another {flag}")
+        nearest = path if directory and path.is_dir() else path.parent
+        while not nearest.exists() and nearest != nearest.parent:
+            nearest = nearest.parent
+        if not nearest.is_dir():
+            raise CliError(f"{flag} {path}: {nearest} is a file, not a directory; pick another {flag}")
+        with tempfile.TemporaryFile(dir=nearest):
+            pass
+    except OSError as error:
+        raise CliError(f"{flag} {path}: cannot write in {nearest} ({error.strerror or error}); pick a writable "
+                       f"{flag}") from error
+
+
+def task_config(task: str, test: bool, preset: str = "paper", residual: bool = True):
+    """The :class:`~seqdex_drake.tasks.base.TaskConfig` of a run: the task's default (``preset="budget"``: its
+    small-budget variant where it has one), with episodes cut to :data:`TEST_EPISODE_LENGTH` steps under
+    ``--test``. ``residual=False`` drops the variant's residual base (``TaskConfig.residual``): a policy that
+    sends whole actions, as demonstrations hold them (``seqdex train --demos``, ``scripts/collect_demos.py``)."""
+    from seqdex_drake.tasks.registry import budget_config, default_config
+
+    config = budget_config(task) if preset == "budget" else default_config(task)
+    if not residual:
+        config = dataclasses.replace(config, residual="")
     if test:
         config = dataclasses.replace(config, episode_length=min(config.episode_length, TEST_EPISODE_LENGTH))
     return config

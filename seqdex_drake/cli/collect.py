@@ -8,14 +8,15 @@ its return to a :class:`~seqdex_drake.chaining.terminal_buffer.TerminalBuffer` w
 target = the next task of its chain; ``--keep-failures`` also records the unsuccessful ones (``success`` False).
 
 The buffer is always written, also when no episode succeeded (then it is empty and the command says so; the
-exit code is still 0). ``--resume`` appends to the existing ``--out`` buffer instead of replacing it.
+exit code is still 0). Its path is checked before the rollouts (an ``--out`` that cannot be written is refused up
+front). ``--resume`` appends to the existing ``--out`` buffer instead of replacing it.
 """
 
 from pathlib import Path
 
 import numpy as np
 
-from seqdex_drake.cli import NEXT_TASK, CliError, observation_spec, task_config
+from seqdex_drake.cli import NEXT_TASK, CliError, check_creatable, check_seed, observation_spec, task_config
 
 #: H, the observations stored per buffer entry (the feasibility function's input length).
 HISTORY = 10
@@ -88,8 +89,13 @@ def run(args) -> int:
     episodes = args.episodes if args.episodes is not None else (TEST_EPISODES if args.test else 100)
     if episodes < 1:
         raise CliError(f"--episodes must be >= 1, got {episodes}")
+    check_seed(args.seed)
+    check_creatable(out, "--out")  # Before the rollouts, not after them.
     ppo = _load_policy(checkpoint)
-    config = task_config(args.task, args.test)
+    from seqdex_drake.cli.rollout import run_preset, run_residual
+
+    # The variant the policy was trained on.
+    config = task_config(args.task, args.test, run_preset(checkpoint), residual=run_residual(checkpoint))
     env = make_env(args.task, config)
     dim = env.observation_space.shape[0]
     if ppo.obs_dim != dim or ppo.action_dim != env.action_space.shape[0]:

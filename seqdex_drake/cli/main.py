@@ -2,12 +2,13 @@
 
 Subcommands (each takes ``--run-dir``, ``--seed``, ``--resume`` and ``--test``)::
 
-    seqdex train --task grasp [--steps N] [--num-envs 2] [--initial-states BUFFER]
+    seqdex train --task grasp [--steps N] [--num-envs 2] [--initial-states BUFFER] [--checkpoint-seconds S]
     seqdex collect --task grasp --checkpoint RUN/last.pt --episodes N --out BUFFER [--keep-failures]
     seqdex pipeline --chain handover --method seqdex|seqdex_no_temporal|policy_seq|tstar|vchain|scratch|curriculum
     seqdex feasibility --run-dir RUN --task lower [--history H] [--no-temporal]
     seqdex finetune --run-dir RUN
     seqdex evaluate --task building_blocks|tool_positioning --run-dir RUN
+    seqdex rollout --task lower --checkpoint RUN/last.pt --episodes N [--out results.json]
 
 ``--test`` runs a tiny budget (episodes of a few steps, small networks, one PPO update, two collected
 episodes) for smoke tests and CI. Bad input exits with status 2 and a one-line message (no traceback); see
@@ -43,13 +44,29 @@ def build_parser() -> argparse.ArgumentParser:
     train = commands.add_parser("train", help="train a sub-task policy with PPO",
                                 description="PPO on one sub-task's process vector env.")
     _common(train, tasks, "continue the run in --run-dir from its last.pt (same counters, optimizer, RNG)")
-    train.add_argument("--steps", type=int, help="total environment steps of the run (summed over envs)")
-    train.add_argument("--num-envs", type=int, default=2, help="parallel envs (default: 2)")
+    train.add_argument("--steps", type=int,
+                       help="total environment steps of the run (summed over envs); whole updates of num-envs x "
+                            "horizon steps are run, so the run stops at the first multiple at or above it")
+    train.add_argument("--num-envs", type=int,
+                       help="parallel envs (default: the preset's, 32 for budget, 16 for paper)")
+    train.add_argument("--preset", choices=("budget", "paper"), default="budget",
+                       help="budget (default): the small-budget task variant where the task has one (the release's "
+                            "scripted phases) and PPO hyperparameters that fit two CPU cores; paper: the paper's MDP "
+                            "and its PPO tables (for users with a cluster)")
+    train.add_argument("--demos", metavar="FILE",
+                       help="demonstrations (scripts/collect_demos.py): behaviour-clone the policy on them first, "
+                            "then train PPO with the decaying DAPG term (weight --demo-coef)")
+    train.add_argument("--demo-coef", type=float, default=0.1,
+                       help="DAPG lambda0, the demonstration term's initial weight (default 0.1; with --demos)")
     train.add_argument("--envs-per-worker", type=int,
                        help="envs each worker process steps in turn (default: ceil(num-envs / cores), one process "
                             "per core); any value gives the same results")
     train.add_argument("--initial-states", metavar="BUFFER",
                        help="start episodes from the previous sub-task's terminal buffer (seqdex collect)")
+    train.add_argument("--checkpoint-seconds", type=float, metavar="S",
+                       help="also write last.pt after an update that ends S s or more after the last write "
+                            "(default: PPOConfig.checkpoint_seconds, 300; inf: every checkpoint_every updates only); "
+                            "Ctrl-C and SIGTERM always write it before exiting")
 
     collect = commands.add_parser("collect", help="roll out a trained policy into the next task's terminal buffer",
                                   description="Deterministic rollouts of a trained sub-task policy; successful "
@@ -60,10 +77,11 @@ def build_parser() -> argparse.ArgumentParser:
     collect.add_argument("--out", help="the buffer file (default: <run-dir>/terminal_<task>_to_<next>.npz)")
     collect.add_argument("--keep-failures", action="store_true", help="also record unsuccessful episodes")
 
-    from seqdex_drake.cli import evaluate, pipeline
+    from seqdex_drake.cli import evaluate, pipeline, rollout
 
     pipeline.add_parsers(commands)
     evaluate.add_parser(commands)
+    rollout.add_parser(commands)
     return parser
 
 
@@ -83,6 +101,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         from seqdex_drake.cli.collect import run
     elif args.command == "evaluate":
         from seqdex_drake.cli.evaluate import run
+    elif args.command == "rollout":
+        from seqdex_drake.cli.rollout import run
     else:
         from seqdex_drake.cli import pipeline
 

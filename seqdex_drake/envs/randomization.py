@@ -156,6 +156,21 @@ class DomainRandomizer:
             object_scale=draw("object_scale", _uniform, c.object_scale_range, no),
             gravity_offset=draw("gravity", _gaussian, c.gravity_std, 3))
 
+    def nominal_sample(self) -> PhysicalSample:
+        """The identity draw of every enabled group (factors 1, offsets 0; disabled groups: None)."""
+        c, na, no = self.config, len(self.actuators), len(self.env.objects.bodies)
+        nm, nr = len(self.robot_mass_bodies), len(self.robot_bodies)
+
+        def value(group, fill, n):
+            return np.full(n, fill) if getattr(c, group) else None
+
+        return PhysicalSample(
+            robot_mass=value("robot_mass", 1.0, nm), robot_friction=value("robot_friction", 1.0, nr),
+            lower_offset=value("joint_limits", 0.0, na), upper_offset=value("joint_limits", 0.0, na),
+            kp_scale=value("joint_stiffness", 1.0, na), damping_scale=value("joint_damping", 1.0, na),
+            object_mass=value("object_mass", 1.0, no), object_friction=value("object_friction", 1.0, no),
+            object_scale=value("object_scale", 1.0, no), gravity_offset=value("gravity", 0.0, 3))
+
     # -------------------------------------------------------------------------------------- applying
     def apply_physical(self, sample: PhysicalSample, include_scale: bool = True) -> None:
         """Writes a sample into the env's contexts (and, for limits and gravity, its plant)."""
@@ -276,6 +291,20 @@ class DomainRandomizer:
             else:
                 depth = max(depth, pair.depth)
         return depth, robot
+
+    def restore_nominal(self) -> None:
+        """Puts the nominal model back (the :meth:`nominal_sample`), as a new environment has it, and forgets the
+        draw: the next :meth:`on_reset` draws afresh. A no-op while nothing was drawn.
+
+        ``SubtaskEnv.reset`` calls it on a seeded reset before the task's reset, which may simulate (Insert's
+        scripted pickup, a tool settling): the episode then depends on its seed alone, not on the parameters an
+        earlier episode drew."""
+        if self.sample is None:
+            return
+        self.apply_physical(self.nominal_sample(), include_scale=True)
+        self.sample, self._physical = None, None
+        self.object_mass_factor = np.ones(len(self.env.objects.bodies))
+        self._steps_since_resample, self._scale_due = 0, True
 
     # ------------------------------------------------------------------------------------ env hooks
     def on_reset(self, np_random: np.random.Generator, reseed: bool, task_reset: bool) -> None:

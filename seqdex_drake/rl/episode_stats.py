@@ -77,6 +77,15 @@ class EpisodeStats:
             metrics["charts/success_rate"] = float(np.mean(self.successes))
         return metrics
 
+    def summary(self) -> str:
+        """The window in words: ``success rate 0.250 over the last 8 episodes`` (the mean return for episodes that
+        report no ``success``), or ``no episodes yet``; a resumed run shows its saved window."""
+        if not self.returns:
+            return "no episodes yet"
+        if self.successes:
+            return f"success rate {np.mean(self.successes):.3f} over the last {len(self.successes)} episodes"
+        return f"mean return {np.mean(self.returns):.3f} over the last {len(self.returns)} episodes"
+
     def selection_metric(self) -> tuple[str, float] | None:
         """What ``best.pt`` maximizes: the windowed success rate if episodes report ``success``, else the
         windowed mean return; ``None`` until ``min(window, num_envs)`` episodes have finished."""

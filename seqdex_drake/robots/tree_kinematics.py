@@ -4,7 +4,7 @@ Every env step needs the poses and spatial velocities of six frames (the four fi
 object) for the observation, and the palm pose and its Jacobian for the wrist IK. Drake computes them in
 microseconds, but the step runs right after ~5-10 ms of physics has evicted the interpreter's and Drake's code
 from the CPU caches; there each Drake call from Python and each line of float arithmetic costs far more, and
-these two parts took ~400 us of a ~5 ms tool-grasp step (README, "Where the env time goes").
+these two parts took ~400 us of a ~5 ms tool-grasp step (docs/performance.md, "How the env time is spent").
 
 :class:`TreeKinematics` reads, once, the part of the plant's tree that holds the given frames (each body's
 inboard joint: revolute, prismatic, weld or quaternion floating, its fixed frame offsets and axis) into a

@@ -107,6 +107,7 @@ class SceneObjects:
             v[body.floating_velocities_start_in_v():body.floating_velocities_start_in_v() + 6] = 0.0
         self.plant.SetPositions(plant_context, q)
         self.plant.SetVelocities(plant_context, v)
+        self._last_speed = [0.0] * len(self.names)  # At rest: no impact of an earlier motion is pending.
         self.set_frozen(root, self.frozen_mask(root) if frozen is None else frozen)
 
     def set_pose(self, root: Context, name: str, X_WB: RigidTransform, frozen: bool = False) -> None:
@@ -115,6 +116,7 @@ class SceneObjects:
         body = self.bodies[self.index(name)]
         self.plant.SetFreeBodyPose(plant_context, body, X_WB)
         self.plant.SetFreeBodySpatialVelocity(plant_context, body, SpatialVelocity.Zero())
+        self._last_speed[self.index(name)] = 0.0  # At rest: no impact of an earlier motion is pending.
         mask = self.frozen_mask(root)
         mask[self.index(name)] = frozen
         self.set_frozen(root, mask)
@@ -129,6 +131,16 @@ class SceneObjects:
             self.set_pose(root, name, self.parking_pose(name), frozen=True)
 
     # --------------------------------------------------------------------------------------- freezing
+    def forget_motion(self) -> None:
+        """Clears the wake/sleep bookkeeping's memory of past motion (each object's still ticks and its speed at
+        the last :meth:`update`), as in a new :class:`SceneObjects`: an environment reset calls it, so that
+        nothing of the previous episode decides what wakes or sleeps in the next one.
+
+        (:meth:`set_frozen` clears the still ticks only: :meth:`update` calls it mid-episode, where the speeds
+        of the check it just made must stay, for the next check's "fast now or at the last check".)"""
+        self._still_ticks = [0] * len(self.names)
+        self._last_speed = [0.0] * len(self.names)
+
     def get_state(self, root: Context) -> dict:
         """Everything besides the plant state that the objects' future depends on (for exact restores)."""
         frozen_set = self.freezer.frozen_set(self.freezer.GetMyContextFromRoot(root))

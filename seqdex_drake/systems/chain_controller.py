@@ -19,6 +19,8 @@ Outputs
 
 The chain's target (block body index, goal pose) is a parameter of the context: call :func:`SetChainTarget`
 after creating the context and before simulating. :func:`LoadChainCheckpoints` finds a chain run's files.
+Several controllers in one diagram need distinct names: ``MakeChainController(..., name=...)`` names the
+Diagram and prefixes its Meshcat marker's path, as ``MakeStation``'s ``name`` does for a station.
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ from seqdex_drake.rl.networks import ActorCritic
 from seqdex_drake.robots.allegro import p_PalmHc_Palm
 from seqdex_drake.robots.arm_ik import PalmIK
 from seqdex_drake.scenario import Scenario
-from seqdex_drake.station import AddStationPlant, MakeControllerPlant
+from seqdex_drake.station import AddStationPlant, CheckSystemName, MakeControllerPlant, MeshcatPath
 from seqdex_drake.systems.chain_parts import ApproachTarget, ChainMarker, StageRouter, WristTargetIntegrator
 from seqdex_drake.systems.inference import limit_blas_threads
 from seqdex_drake.systems.observations import ObservationAssembler, ObservationTarget
@@ -77,6 +79,9 @@ class ChainParams:
     inference: str = "numpy"
     """Inference path of the policies and the switcher's F's: "numpy" (float32 snapshots, fast at batch 1) or
     "torch" (the models themselves); overrides ``switcher.inference``."""
+    stage_configs: Sequence | None = None
+    """Each stage's :class:`~seqdex_drake.tasks.base.TaskConfig` as its policy was trained (EMA, wrist step,
+    episode length, scripted phases; ``seqdex_drake.chaining.shipped`` records them); None: the tasks' defaults."""
 
 
 @dataclasses.dataclass
@@ -176,7 +181,7 @@ def _load_f(index: int, tasks: list[str], entry, sizes: list[int]) -> Feasibilit
 
 
 def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]], feasibility: Sequence | None = None,
-                        params: ChainParams | None = None, meshcat=None) -> Diagram:
+                        params: ChainParams | None = None, meshcat=None, name: str | None = None) -> Diagram:
     """Builds the chain controller Diagram for ``scenario`` (see the module docstring for its ports).
 
     Args:
@@ -186,15 +191,22 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
         feasibility: None (no F at all: sequential execution) or K entries, entry 0 None, entry i a path to
             F^i's file, a ``FeasibilityFile``, or None.
         params: EMA, switcher, OSC and untrained-policy settings; defaults to ``ChainParams()``.
-        meshcat: optional; draws the approach target coloured by the executing stage.
+        meshcat: optional; draws the approach target coloured by the executing stage (Meshcat path
+            ``chain/target``, ``<name>/chain/target`` with a ``name``).
+        name: the Diagram's name and the prefix of its Meshcat path; give each controller of one diagram its
+            own. None: ``chain_controller``.
 
     Raises:
         ValueError: an unknown task, a Search stage without a label camera in the scenario, a checkpoint or F
-            whose observation size, task or spec does not fit its stage (the message names the file).
+            whose observation size, task or spec does not fit its stage (the message names the file); a
+            ``name`` that is empty or contains ``::`` or ``/``.
         FileNotFoundError: a checkpoint or F path that does not exist.
     """
     from seqdex_drake.tasks.registry import default_config
 
+    # Resolved first: the loops below reuse ``name`` for port names.
+    prefix = None if name is None else CheckSystemName(name)
+    diagram_name = prefix or "chain_controller"
     params = params or ChainParams()
     if params.torch_threads:
         import torch
@@ -213,7 +225,9 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
     if any(pixels for _, pixels in layouts) and not cameras:
         raise ValueError("a Search stage needs a camera with label images in the scenario (e.g. "
                          "building_blocks/search); this scenario has none")
-    configs = [default_config(task) for task in tasks]
+    configs = [default_config(task) for task in tasks] if params.stage_configs is None else list(params.stage_configs)
+    if [config.name for config in configs] != tasks:
+        raise ValueError(f"stage_configs are for {[config.name for config in configs]}, the stages are {tasks}")
     period = scenario.control_period
 
     builder = DiagramBuilder()
@@ -227,7 +241,9 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
     for i, ((task, policy), config) in enumerate(zip(stages, configs, strict=True)):
         ema = config.ema if params.ema is None else params.ema
         policy_params = PolicyParams(control_period=period, ema=ema, wrist_step=config.wrist_step,
-                                     inference=params.inference)
+                                     inference=params.inference, phases=config.phases,
+                                     time_steps=config.episode_length if config.observe_time else 0,
+                                     residual=config.residual)
         system = _make_policy(i, task, policy, sizes[i], policy_params, params)
         policies.append(builder.AddNamedSystem(f"policy.{i}", system))
     f_files = [_load_f(i, tasks, entry, sizes) for i, entry in enumerate(feasibility)]
@@ -279,7 +295,7 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
     builder.Connect(router.GetOutputPort("wrist_translation"), wrist.GetInputPort("wrist_translation"))
     builder.Connect(router.GetOutputPort("policy_in_charge"), wrist.GetInputPort("policy_in_charge"))
     if meshcat is not None:
-        marker = builder.AddNamedSystem("marker", ChainMarker(meshcat))
+        marker = builder.AddNamedSystem("marker", ChainMarker(meshcat, path=MeshcatPath(prefix, "chain/target")))
         builder.Connect(approach.GetOutputPort("target_position"), marker.GetInputPort("target_position"))
         builder.Connect(router.GetOutputPort("executing_stage"), marker.GetInputPort("stage"))
 
@@ -294,7 +310,7 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
                        ("approach_target", approach.GetOutputPort("target_position"))):
         builder.ExportOutput(port, name)
     diagram = builder.Build()
-    diagram.set_name("chain_controller")
+    diagram.set_name(diagram_name)
     return diagram
 
 

@@ -6,7 +6,8 @@ Grasp's successful terminal states (forward initialization, ``options={"initial_
 an Insert reset instead *simulates* a scripted tripod pickup (``seqdex_drake.scene.grasping``): the block
 stands on the table, the hand descends, squeezes with force-balanced targets and lifts it, a physically valid
 grasp in about 140 control steps. Tool Reorient closes the hand into a fist around the hammer's handle and
-lets the hammer settle in it (:func:`synthesized_tool_grasp`, a power grasp), about 90 control steps.
+lets the hammer settle in it (:func:`synthesized_tool_grasp`, a power grasp, its yaw across the palm drawn per
+episode), about 90 control steps.
 """
 
 import dataclasses
@@ -132,6 +133,14 @@ class FistGrasp:
 TOOL_GRASPS = {"hammer": FistGrasp(p_TA=np.array([0.0, 0.1246, -0.0115]), p_PalmA=np.array([0.034, -0.035, 0.05]),
                                    yaw=0.35, roll=0.52)}
 
+GRASP_YAW_JITTER = 0.1
+"""Half-width [rad] of the uniform per-episode variation of a synthesized grasp's ``yaw`` (the handle's direction
+across the palm, turned about point A; with the palm down, the tool's yaw in the world). Hammer: every yaw within
++-0.12 rad of the nominal grasp (scanned in 0.02 rad steps, and 20 seeds) settles and then holds to 0.5 mm and
+0.02 rad over 1 s; the placement clears the hand by 1.4 mm at +-0.1 rad (0.9 mm at +0.12, inside it at +0.2),
+and at -0.15 rad the hammer does not settle. Sliding the handle along its axis as well is not safe: with ``p_TA``
+3 mm nearer the head, +0.08 rad already places the hammer touching the hand."""
+
 FIST_CLOSE_TICKS = 20
 FIST_HOLD_TICKS = 10
 SETTLE_TICKS = 60
@@ -143,11 +152,21 @@ def _hand_q(fingers: np.ndarray, thumb: np.ndarray) -> np.ndarray:
     return np.r_[np.tile(fingers, 3), thumb]
 
 
-def synthesized_tool_grasp(env, name: str) -> None:
+def sample_fist_grasp(name: str, rng: np.random.Generator | None) -> FistGrasp:
+    """Tool ``name``'s :class:`FistGrasp` of ``TOOL_GRASPS`` with its yaw varied uniformly by up to
+    ``GRASP_YAW_JITTER`` (one draw from ``rng``); the nominal grasp for ``rng=None``."""
+    grasp = TOOL_GRASPS[name]
+    if rng is None:
+        return grasp
+    return dataclasses.replace(grasp, yaw=grasp.yaw + float(rng.uniform(-GRASP_YAW_JITTER, GRASP_YAW_JITTER)))
+
+
+def synthesized_tool_grasp(env, name: str, rng: np.random.Generator | None = None) -> None:
     """Settles tool ``name`` in a fist grasp with the arm at home (palm down), all by simulation.
 
     1. The arm is put at home and the hand in the open fist shape (``FIST_FINGER_OPEN``, thumb parked), at
-       rest; the tool is placed at its :class:`FistGrasp` pose in the hand, touching nothing, pinned by the
+       rest; the tool is placed at its :class:`FistGrasp` pose in the hand (with ``rng``, its yaw varied by
+       :func:`sample_fist_grasp`: the episode's start varies with the seed), touching nothing, pinned by the
        scene's freezer (a helper holding it up while the hand closes).
     2. The index, middle and ring targets ramp to ``FIST_FINGER_CLOSED`` over 1/3 s and hold 1/6 s: the
        fingers close around the handle until their tips rest on the palm face.
@@ -164,7 +183,7 @@ def synthesized_tool_grasp(env, name: str) -> None:
     if name not in TOOL_GRASPS:
         raise ValueError(f"no synthesized grasp for '{name}' (have: {', '.join(TOOL_GRASPS)}); pass "
                          "options={'initial_state': ...} with a hand-off state from tool_grasp instead")
-    grasp = TOOL_GRASPS[name]
+    grasp = sample_fist_grasp(name, rng)
     open_q, fist_q = _hand_q(FIST_FINGER_OPEN, FIST_THUMB), _hand_q(FIST_FINGER_CLOSED, FIST_THUMB)
     env.set_robot(np.asarray(env.scenario.robot.arm_home, dtype=float), open_q)
     palm = env.plant.GetBodyByName(PALM_BODY, env.hand)

@@ -2,8 +2,9 @@
 
 Reset: a hand-off state from tool Grasp (``options={"initial_state": ...}``), or standalone the hammer
 settled, by simulation, in a fist (power) grasp of its handle with the palm down (``tasks/handoff.py``,
-:func:`~seqdex_drake.tasks.handoff.synthesized_tool_grasp`; only the hammer has one). The hand's PD targets
-are then the fist: hand actions are absolute targets, so a policy keeps holding with
+:func:`~seqdex_drake.tasks.handoff.synthesized_tool_grasp`; only the hammer has one), the handle's yaw across
+the palm drawn from the episode's rng (+-0.1 rad: the start, and so the goal, vary with the seed). The hand's PD
+targets are then the fist: hand actions are absolute targets, so a policy keeps holding with
 :func:`~seqdex_drake.tasks.handoff.hold_action`, while the zero action opens the hand to mid-range. Goal: the
 start pose flipped 180 deg about the tool's long axis y (FACTS.md), at the same place. Observation: base +
 goal (173).
@@ -37,7 +38,7 @@ class ToolReorientTask(Task):
         name = tool_name(int(rng.choice(env.config.object_types)))
         env.objects.park(env.context)
         env.set_target(name)
-        synthesized_tool_grasp(env, name)
+        synthesized_tool_grasp(env, name, rng)
         self.on_restore(env)
 
     def on_restore(self, env, from_task: str = "") -> None:

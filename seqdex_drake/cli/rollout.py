@@ -1,0 +1,172 @@
+"""``seqdex rollout``: evaluate a trained sub-task policy on its own env (any sub-task, a chain's last one included).
+
+    seqdex rollout --task lower --checkpoint runs/lower/best.pt --episodes 100 [--seed 0] [--out results.json]
+    seqdex rollout --task tool_grasp --zero-action --episodes 100   # the budget variant's scripted base alone
+
+Episode ``i`` starts from ``env.reset(seed=seed + i)`` (the task's own initial-state distribution) and runs the
+policy's mean action (:func:`~seqdex_drake.rl.policy_loading.load_policy`) in one in-process
+:class:`~seqdex_drake.envs.subtask_env.SubtaskEnv` until it terminates or truncates; it succeeded if ``success``
+holds at its last step. The env is the task variant the policy was trained on (``--preset``, by default the one
+recorded in the run's ``config.json`` beside the checkpoint). Prints the success rate and the mean return;
+``--out`` also writes them with every episode's seed, return, length and outcome as JSON (the path is checked to
+be writable before any rollout).
+``--test``: episodes cut to a few steps, 2 episodes unless ``--episodes`` is given.
+"""
+
+import json
+import math
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from seqdex_drake.cli import CliError, check_creatable, check_seed, observation_spec, task_config
+
+#: Episodes rolled out when ``--episodes`` is not given (with and without ``--test``).
+DEFAULT_EPISODES, TEST_EPISODES = 100, 2
+#: The task variants ``seqdex train --preset`` trains on (``task_config``'s ``preset``).
+PRESETS = ("budget", "paper")
+
+
+def add_parser(commands) -> None:
+    """Adds the ``rollout`` subcommand to the argparse subparsers object ``commands``."""
+    from seqdex_drake.tasks.registry import task_names
+
+    tasks = task_names()
+    parser = commands.add_parser("rollout", help="success rate and mean return of a trained sub-task policy",
+                                 description="Deterministic rollouts of a trained sub-task policy in its own env "
+                                 "(any sub-task, the last one of a chain included).")
+    parser.add_argument("--task", required=True, choices=tasks, metavar="TASK",
+                        help=f"the sub-task: {', '.join(tasks)}")
+    parser.add_argument("--checkpoint", help="the policy checkpoint (default: <run-dir>/last.pt)")
+    parser.add_argument("--run-dir", help="the training run directory (default: runs/<task>)")
+    parser.add_argument("--episodes", type=int,
+                        help=f"episodes to roll out (default: {DEFAULT_EPISODES}; {TEST_EPISODES} with --test)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the first episode; episode i uses seed + i "
+                        "(default: 0)")
+    parser.add_argument("--preset", choices=PRESETS,
+                        help="the task variant to roll out in: budget (the small-budget variant where the task has "
+                             "one) or paper (default: the preset in the run's config.json beside the checkpoint, "
+                             "else paper)")
+    parser.add_argument("--zero-action", action="store_true",
+                        help="roll out the zero action instead of a checkpoint: a reference, and for a task variant "
+                             "with a residual base (TaskConfig.residual) its script alone (default preset: budget)")
+    parser.add_argument("--out", help="also write the results to this JSON file")
+    parser.add_argument("--test", action="store_true", help="a tiny budget for smoke tests and CI")
+
+
+def run_preset(checkpoint: Path) -> str:
+    """The preset recorded in the run record beside ``checkpoint`` (``config.json`` of ``seqdex train``):
+    ``paper`` for runs recorded before presets and for a checkpoint without a readable record."""
+    try:
+        record = json.loads((checkpoint.parent / "config.json").read_text())
+        preset = record.get("preset", "paper")
+    except (OSError, ValueError, AttributeError):
+        return "paper"
+    return preset if preset in PRESETS else "paper"
+
+
+def run_residual(checkpoint: Path) -> bool:
+    """Whether the run beside ``checkpoint`` trained on its task config's residual base: every run except those
+    trained with demonstrations (``seqdex train --demos`` trains whole actions; see ``cli.task_config``)."""
+    try:
+        return json.loads((checkpoint.parent / "config.json").read_text()).get("demos") is None
+    except (OSError, ValueError, AttributeError):
+        return True
+
+
+def run_episode(env, policy, seed: int) -> dict:
+    """One episode from ``env.reset(seed=seed)`` with ``policy``: its seed, return, length and outcome."""
+    observation, info = env.reset(seed=seed)
+    episode_return, length = 0.0, 0
+    while True:
+        observation, reward, terminated, truncated, info = env.step(policy(observation))
+        episode_return += float(reward)
+        length += 1
+        if terminated or truncated:
+            return {"seed": seed, "return": episode_return, "length": length,
+                    "success": bool(info.get("success", False)), "terminated": bool(terminated),
+                    "simulator_error": bool(info.get("simulator_error", False))}
+
+
+def summarize(records: list[dict]) -> dict:
+    """Success rate, mean / std of the return and mean length of the episode ``records``."""
+    returns = [record["return"] for record in records]
+    mean = sum(returns) / len(returns)
+    return {"success_rate": sum(record["success"] for record in records) / len(records), "mean_return": mean,
+            "std_return": math.sqrt(sum((value - mean) ** 2 for value in returns) / len(returns)),
+            "mean_length": sum(record["length"] for record in records) / len(records)}
+
+
+def _load(args, checkpoint: Path):
+    """The deterministic policy of ``checkpoint``; :class:`CliError` if it is missing or unreadable."""
+    from seqdex_drake.rl.checkpoint import CheckpointError
+    from seqdex_drake.rl.policy_loading import load_policy
+
+    try:
+        return load_policy(checkpoint, deterministic=True)
+    except FileNotFoundError as error:
+        raise CliError(f"{error}, or train one first: seqdex train --task {args.task}") from error
+    except (CheckpointError, ValueError) as error:
+        raise CliError(str(error)) from error
+
+
+def _check(args, checkpoint: Path, policy, env) -> None:
+    """Raises :class:`CliError` unless ``policy`` reads ``env``'s observations and acts in its action space."""
+    try:
+        policy.check_observation_spec(observation_spec(args.task, env.observation_space.shape[0]),
+                                      f"the {args.task} env")
+    except ValueError as error:
+        raise CliError(str(error)) from error
+    if policy.action_dim != env.action_space.shape[0]:
+        raise CliError(f"checkpoint {checkpoint} is a policy for {policy.action_dim} actions, the {args.task} env "
+                       f"has {env.action_space.shape[0]}")
+
+
+def run(args) -> int:
+    """Runs ``seqdex rollout`` with the parsed ``args``; returns the exit code."""
+    from tqdm import tqdm
+
+    from seqdex_drake.atomic import atomic_write
+    from seqdex_drake.tasks.registry import make_env
+
+    episodes = args.episodes if args.episodes is not None else (TEST_EPISODES if args.test else DEFAULT_EPISODES)
+    if episodes < 1:
+        raise CliError(f"--episodes must be >= 1, got {episodes}")
+    checkpoint = Path(args.checkpoint) if args.checkpoint else Path(args.run_dir or f"runs/{args.task}") / "last.pt"
+    check_seed(args.seed)
+    check_seed(args.seed + episodes - 1, "--seed + --episodes - 1 (the last episode's seed)")
+    out = Path(args.out) if args.out else None
+    if out is not None:
+        check_creatable(out, "--out")  # Before the rollouts, not after them.
+    if args.zero_action:  # No policy: the zero action (a residual variant's script alone).
+        if args.checkpoint or args.run_dir:
+            raise CliError("--zero-action rolls out no policy; drop --checkpoint / --run-dir")
+        preset = args.preset or "budget"
+        config = task_config(args.task, args.test, preset)
+        env = make_env(args.task, config)
+        zeros = np.zeros(env.action_space.shape, dtype=np.float32)
+        policy, checkpoint = (lambda observation: zeros), "the zero action" + (
+            f" (the {config.residual} base alone)" if config.residual else "")
+    else:
+        preset = args.preset or run_preset(checkpoint)
+        config = task_config(args.task, args.test, preset, residual=run_residual(checkpoint))
+        policy = _load(args, checkpoint)
+        env = make_env(args.task, config)
+        _check(args, checkpoint, policy, env)
+    records = [run_episode(env, policy, args.seed + episode)
+               for episode in tqdm(range(episodes), desc=f"rollout {args.task}", unit="episode",
+                                   disable=not sys.stderr.isatty())]
+    summary = summarize(records)
+    print(f"seqdex rollout: {args.task}: success rate {summary['success_rate']:.3f} "
+          f"({sum(record['success'] for record in records)}/{episodes}), mean return {summary['mean_return']:.3f} "
+          f"(std {summary['std_return']:.3f}), mean length {summary['mean_length']:.1f} steps; policy {checkpoint}, "
+          f"{preset} task variant")
+    if out is not None:
+        result = {"task": args.task, "checkpoint": os.fspath(checkpoint), "episodes": episodes, "seed": args.seed,
+                  "preset": preset, "test": bool(args.test), "episode_length": config.episode_length,
+                  "deterministic": True, **summary, "per_episode": records}
+        atomic_write(out, lambda file: file.write((json.dumps(result, indent=2) + "\n").encode()))
+        print(f"seqdex rollout: wrote {out}")
+    return 0
