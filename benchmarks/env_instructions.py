@@ -7,10 +7,10 @@ runs. Instruction counts do not: per sub-task, the env is reset (seed 0), steppe
 (the physics, which the raw loop runs too) and those outside it (the env's own code: the IK, the observation,
 the reward and success test, the wake check, Python and pybind glue). ``outside_fraction`` = outside / total is
 what the env's code adds in instructions. It is not the time it adds: that code runs right after the physics,
-with its code and data evicted from the caches, at a fraction of the physics' instructions per cycle (see the
-README's "Where the env time goes"). So callgrind also simulates the caches, with a last level the size of this
-machine's per-core L2 (``--LL``, 512 KB, 8-way; L1 32 KB each): ``outside_l2_misses`` counts the lines the
-env's code (instructions and data) brings in from beyond that L2 per step, most of them lines the physics evicted
+with its code and data evicted from the caches, at a fraction of the physics' instructions per cycle (see
+docs/performance.md, "How the env time is spent"). So callgrind also simulates the caches, with a last level
+the size of this machine's per-core L2 (``--LL``, 512 KB, 8-way; L1 32 KB each): ``outside_l2_misses`` counts the lines
+the env's code (instructions and data) brings in from beyond that L2 per step, most of them lines the physics evicted
 (``outside_l2_instruction_misses`` of them code). That, not the instruction count, is what cold env code costs in
 time, ~100-300 cycles a line; an estimate that weighs each by 100 cycles is ``outside_cycles_estimate`` (each L1
 miss 10, each instruction 1). The counts exclude what switching the counting on and off costs (an empty window,

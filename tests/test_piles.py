@@ -33,7 +33,8 @@ def test_cached_pile_rests_inside_the_box():
     end = harness.objects.positions(harness.context)
     assert InsideBox(end).all(), "a block left the box"
     assert max_penetration(harness) < 0.002
-    # Quasi-static: with point contact an all-dynamic pile keeps creeping slowly (README, "Physics choices").
+    # Quasi-static: with point contact an all-dynamic pile keeps creeping slowly
+    # (docs/architecture.md, "Physics choices").
     assert np.median(np.linalg.norm(end[:, 4:] - start[:, 4:], axis=1)) < 0.0015, "the cached pile was not settled"
 
 

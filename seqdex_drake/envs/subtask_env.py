@@ -36,6 +36,8 @@ from seqdex_drake.systems.observations import (
 )
 from seqdex_drake.systems.target_pixels import TargetPixelCounter
 from seqdex_drake.tasks.base import Task, TaskConfig
+from seqdex_drake.tasks.phases import apply_phases
+from seqdex_drake.tasks.residual import apply_residual, make_base
 
 
 @dataclasses.dataclass
@@ -129,7 +131,8 @@ class SubtaskEnv(gym.Env):
         if not self.config.hand_actions:
             action_low[:16] = action_high[:16] = 0.0
         self.action_space = gym.spaces.Box(action_low, action_high, dtype=np.float32)
-        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (assembler.size,), np.float32)
+        size = assembler.size + (1 if self.config.observe_time else 0)  # The progress entry (observe_time).
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (size,), np.float32)
         self.target_object = ""
         self._object_body, self._p_OOcm = None, np.zeros(3)  # Of the target object (set_target).
         self.goal = np.array([0, 0, 0, 1.0, 0, 0, 0])
@@ -144,6 +147,9 @@ class SubtaskEnv(gym.Env):
         self._step_memo = {}  # What the step's readers derived from it (raw_observation, object_position).
         self._observation_target = ObservationTarget()
         self.randomizer = DomainRandomizer(self, self.config.randomization)  # DR hook (envs/randomization.py)
+        phases = self.config.phases
+        self._phases = phases if phases is not None and phases.enabled else None
+        self._residual_base = make_base(self.config.residual) if self.config.residual else None
 
     # ------------------------------------------------------------------------------------------- state
     @property
@@ -303,12 +309,27 @@ class SubtaskEnv(gym.Env):
                                               self._hand_torque_port.Eval(self._station_context), pixel_input)
 
     def observation(self) -> np.ndarray:
-        return self.raw_observation().astype(np.float32)
+        """The policy's observation: :meth:`raw_observation` in float32, with the episode's progress appended
+        when ``TaskConfig.observe_time``."""
+        return self._with_time(self.raw_observation().astype(np.float32))
+
+    def _with_time(self, observation: np.ndarray) -> np.ndarray:
+        if not self.config.observe_time:
+            return observation
+        return np.append(observation, np.float32(self._steps / self.config.episode_length))
 
     # ------------------------------------------------------------------------------------------ gym API
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
+        # A full reset, from what a new env holds (nominal model on a seeded reset): same seed and actions, same
+        # trajectory, whatever the env did before (tests/test_reset_determinism.py).
         self.context.SetTime(0.0)
+        self.plant.SetDefaultState(self._plant_context, self._plant_context.get_mutable_state())
+        self.set_robot(np.asarray(self.scenario.robot.arm_home, dtype=float), ALLEGRO_OPEN_Q)
+        self.goal = np.array([0, 0, 0, 1.0, 0, 0, 0])
+        self.objects.forget_motion()
+        if seed is not None:
+            self.randomizer.restore_nominal()
         self.simulator.Initialize()  # Some resets simulate (Insert's scripted hand-off).
         initial_state = (options or {}).get("initial_state")
         if initial_state is not None:
@@ -328,18 +349,25 @@ class SubtaskEnv(gym.Env):
     def step(self, action):
         # The step's arithmetic is on Python floats and lists, with a handful of Drake and numpy calls: right
         # after the physics, this code runs with its caches cold, where every distinct numpy function costs
-        # microseconds (see the README's "Where the env time goes").
+        # microseconds (see docs/performance.md, "How the env time is spent").
         action = np.asarray(action, dtype=float)
         if action.shape != (ACTION_SIZE,):
             raise ValueError(f"action must have shape ({ACTION_SIZE},), got {action.shape}")
         a = action.tolist()
         if not all(map(math.isfinite, a)):
             return self.observation(), 0.0, False, True, {"nan_action": True, "success": False}
+        if self._residual_base is not None:  # A residual policy: the action corrects a script (tasks/residual.py).
+            a = apply_residual(self._residual_base, self.observation(), self._steps, a)
         randomizer = self.randomizer if self.randomizer.enabled else None  # DR hooks only if any group is on.
         if randomizer is not None:
             a = randomizer.perturb_action(a)  # DR hook: action noise
         a = [min(max(x, -1.0), 1.0) for x in a]
-        if self.config.hand_actions:  # Joint targets scaled to the limits (allegro.scale_action_to_limits).
+        hand_frozen = False
+        if self._phases is not None:  # The release's scripted lift and frozen hand (tasks/phases.py).
+            a, hand_frozen = apply_phases(self._phases, self._steps, a, self._previous_action)
+        if hand_frozen:
+            pass  # The hand holds its targets; ``a`` carries the previous step's hand entries.
+        elif self.config.hand_actions:  # Joint targets scaled to the limits (allegro.scale_action_to_limits).
             target = [low + 0.5 * (x + 1.0) * r for x, low, r in zip(a[:16], _HAND_LOW, _HAND_RANGE, strict=True)]
             ema = self.config.ema
             self._hand_target = target if ema == 1.0 else [ema * t + (1 - ema) * h
@@ -368,8 +396,10 @@ class SubtaskEnv(gym.Env):
         # All finite (in float32) unless the sum of magnitudes says otherwise; then numpy decides exactly.
         if not sum(map(abs, values)) < _FLOAT32_MAX and not np.isfinite(observation).all():
             info.update(simulator_error=True, error="non-finite observation", success=False)
-            return np.nan_to_num(observation, nan=0.0, posinf=0.0, neginf=0.0), 0.0, False, True, info
+            observation = self._with_time(np.nan_to_num(observation, nan=0.0, posinf=0.0, neginf=0.0))
+            return observation, 0.0, False, True, info
         self._steps += 1
+        observation = self._with_time(observation)
         self._step_values = values  # What the readers below see (raw_observation() etc.) until the step ends.
         try:
             terms = self.task.reward_terms(self, np.array(a))  # The action as applied (noised, clipped).

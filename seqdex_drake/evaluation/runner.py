@@ -82,6 +82,15 @@ class Outcome:
     rotation_error: float
 
 
+def _observation_sizes() -> dict[str, int]:
+    """Each registered task's observation size (the base layout plus its goal or pixel part)."""
+    from seqdex_drake.systems.observations import BASE_SIZE, GOAL_SIZE
+    from seqdex_drake.tasks.registry import REGISTRY
+
+    return {name: BASE_SIZE + (GOAL_SIZE if task.goal else 0) + (1 if task.pixels else 0)
+            for name, (_, task) in REGISTRY.items()}
+
+
 class ChainRunner:
     """A station + chain controller (+ display) for one task family (see the module docstring).
 
@@ -106,7 +115,17 @@ class ChainRunner:
         self.tasks = list(LoadChain(config.family).stages)
         self.scenario = LoadScenario(SCENARIOS[config.family], scenario_text=f"{{random_seed: {config.seed}}}")
         stages, feasibility, self.missing = [(task, None) for task in self.tasks], None, []
-        if config.run_dir is not None:
+        stage_configs, self.shipped = None, None
+        if config.run_dir is not None and (Path(config.run_dir) / "manifest.json").exists():
+            from seqdex_drake.chaining.shipped import ShippedChainError, load_shipped_chain
+
+            try:  # Shipped checkpoints: checked (files whole, specs, task configs) before anything is built.
+                self.shipped = load_shipped_chain(config.run_dir, config.family, self.tasks, _observation_sizes())
+            except ShippedChainError as error:
+                raise ChainRunError(str(error)) from error
+            stages, feasibility, self.missing = self.shipped.stages, self.shipped.feasibility, self.shipped.missing
+            stage_configs = self.shipped.configs
+        elif config.run_dir is not None:
             try:
                 found = LoadChainCheckpoints(config.run_dir, self.tasks)
             except FileNotFoundError as error:
@@ -118,7 +137,7 @@ class ChainRunner:
                             f"an untrained policy" for i, task in enumerate(self.tasks)]
         params = ChainParams(switcher=SwitcherParams(max_switches=config.max_switches,
                                                      stage_steps=config.stage_steps),
-                             untrained_seed=config.seed)
+                             untrained_seed=config.seed, stage_configs=stage_configs)
         if config.untrained_hidden_sizes is not None:
             params.untrained_hidden_sizes = tuple(config.untrained_hidden_sizes)
         builder = DiagramBuilder()

@@ -68,6 +68,14 @@ class PPOConfig:
     """Soft bound of the bounds loss on the action mean (rl_games: 1.1, actions live in [-1, 1])."""
     normalize_advantages: bool = True
     """Standardize the advantages of each rollout to zero mean and unit variance before the update."""
+    reward_scale: float = 1.0
+    """The learner trains on ``reward_scale * reward`` (logged returns stay unscaled): keeps the critic's targets
+    near unit size, so that its gradients do not take over the global gradient-norm clip."""
+    demo_coef: float = 0.0
+    """DAPG's lambda0: weight of the demonstrations' negative log-likelihood in the loss (``rl/demonstrations.py``;
+    0: no demonstration term). Needs demonstrations (``PPO.demos``)."""
+    demo_decay: float = 0.95
+    """DAPG's lambda1: the demonstration weight at update k is ``demo_coef * demo_decay ** k``."""
 
     # ----------------------------------------------------------------------------------------- rollouts
     num_envs: int = 16
@@ -98,6 +106,9 @@ class PPOConfig:
     """Episodes in the moving window of the logged return, length and success rate (and of best.pt)."""
     checkpoint_every: int = 50
     """Write ``last.pt`` every this many updates (and at the end of training)."""
+    checkpoint_seconds: float = 300.0
+    """Also write ``last.pt`` after an update that ends this many wall-clock seconds or more after the last write,
+    so that a crash loses about this much work at most however long updates take (``inf``: by count only)."""
 
     # ---------------------------------------------------------------------------------------- presets
     @classmethod
@@ -113,6 +124,12 @@ class PPOConfig:
         if name not in presets:
             raise ValueError(f"no PPO hyperparameters for sub-task {name!r}; known: {sorted(presets)}")
         return dataclasses.replace(cls(), **{**presets[name], **overrides})
+
+    @classmethod
+    def for_budget(cls, name: str, **overrides: Any) -> "PPOConfig":
+        """The small-budget preset (:data:`BUDGET_HYPERPARAMETERS`) over the sub-task's paper column, with
+        optional overrides."""
+        return cls.for_task(name, **{**BUDGET_HYPERPARAMETERS, **overrides})
 
     def to_dict(self) -> dict[str, Any]:
         """Plain-data form (lists for tuples), as stored in checkpoints."""
@@ -150,6 +167,15 @@ PAPER_TASK_HYPERPARAMETERS: dict[str, dict[str, Any]] = {
     "tool_grasp": dict(num_minibatches=4, num_epochs=5, horizon=8, gamma=0.96),
     "tool_reorient": dict(num_minibatches=4, num_epochs=10, horizon=20, gamma=0.96),
 }
+
+#: The small-budget preset (``seqdex train --preset budget``; ``../shared/TRAINING.md``, "PPO at small batch"):
+#: 2048-transition batches (32 envs x 64 steps), 5 epochs of 4 minibatches, [256, 256, 128] networks (about 0.1 M
+#: parameters each, where the paper's are 3.4 M: the learner then costs a few per cent of the env's time on two
+#: cores), initial action std 0.5, a fixed learning rate, rewards scaled by 0.1 with an unclipped value loss.
+BUDGET_HYPERPARAMETERS: dict[str, Any] = dict(
+    actor_hidden_sizes=(256, 256, 128), critic_hidden_sizes=(256, 256, 128), num_envs=32, horizon=64,
+    num_epochs=5, num_minibatches=4, gamma=0.98, learning_rate=3e-4, adaptive_lr=False, clip_value_loss=False,
+    init_log_std=math.log(0.5), reward_scale=0.1, checkpoint_every=5)
 
 #: The cheap hand-over chain (``tasks/handover_common.py``): not in the paper; small networks and long rollouts
 #: so that each stage learns in a few thousand steps on two CPU workers.

@@ -40,6 +40,7 @@ from tqdm import tqdm
 from seqdex_drake.rl.buffer import RolloutBuffer
 from seqdex_drake.rl.checkpoint import capture_rng_state, load_checkpoint, restore_rng_state, save_checkpoint
 from seqdex_drake.rl.config import PPOConfig
+from seqdex_drake.rl.demonstrations import demo_loss
 from seqdex_drake.rl.episode_stats import EpisodeStats
 from seqdex_drake.rl.losses import (
     adaptive_learning_rate,
@@ -97,6 +98,8 @@ class PPO:
         self._saved_env_state: dict | None = None  # From a checkpoint; train() restores it into its env.
         self.nonfinite_values = 0
         """Non-finite observation / reward entries from the env replaced by 0 so far."""
+        self.demos = None
+        """Demonstrations for the DAPG term (``rl.demonstrations.Demonstrations``; with ``config.demo_coef``)."""
         self.obs_spec: dict | None = None
         """What the policy reads (an ObservationSpec as a dict), recorded by whoever builds the learner for a task
         and checked by the commands that load a checkpoint for a task; None when not recorded."""
@@ -228,7 +231,8 @@ class PPO:
             final_obs = self._tensor(self._finite(np.stack([infos[i]["final_observation"] for i in bootstrap])))
             with torch.no_grad():
                 final_values[torch.as_tensor(bootstrap, device=self.device)] = self.model.value(final_obs)
-        self.buffer.add_at(t, list(indices), obs, actions, log_probs, means, rewards, terminated, truncated, values,
+        scaled = rewards if self.config.reward_scale == 1.0 else rewards * self.config.reward_scale
+        self.buffer.add_at(t, list(indices), obs, actions, log_probs, means, scaled, terminated, truncated, values,
                            final_values)
         if stats:
             self.stats.record_step(rewards, terminated, truncated, infos)
@@ -251,7 +255,8 @@ class PPO:
         advantages = buffer.advantages.reshape(-1)
         if config.normalize_advantages and advantages.numel() > 1:
             advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
-        sums = dict.fromkeys(("policy", "value", "entropy", "bounds", "approx_kl", "clip_fraction"), 0.0)
+        sums = dict.fromkeys(("policy", "value", "entropy", "bounds", "approx_kl", "clip_fraction", "demo_nll"), 0.0)
+        demo_weight = self.demo_weight()
         count = 0
         for _ in range(config.num_epochs):
             for batch in buffer.minibatches(config.num_minibatches, self.generator, advantages):
@@ -264,6 +269,10 @@ class PPO:
                 bound_loss = bounds_loss(means, config.bounds_loss_bound)
                 loss = (policy_loss + config.value_coef * value_loss - config.entropy_coef * entropy
                         + config.bounds_loss_coef * bound_loss)
+                if demo_weight > 0.0:  # DAPG: the demonstrations' NLL, weight lambda0 * lambda1^k.
+                    demo = demo_loss(model, self.demos, len(batch["obs"]), self.generator)
+                    loss = loss + demo_weight * demo
+                    sums["demo_nll"] += demo.item()
                 with torch.no_grad():
                     kl = gaussian_kl(batch["means"], buffer.policy_log_std, means, model.log_std).mean().item()
                 if config.adaptive_lr:  # Before the step, as in the release: the KL of the pre-step policy.
@@ -283,52 +292,96 @@ class PPO:
         returns, values = buffer.returns.reshape(-1), buffer.values.reshape(-1)
         explained = 1.0 - (returns - values).var() / returns.var() if returns.var() > 0 else torch.tensor(math.nan)
         metrics = {f"losses/{key}": value / count for key, value in sums.items()}
+        metrics["losses/demo_weight"] = demo_weight
         metrics.update({"losses/explained_variance": float(explained), "charts/learning_rate": self.learning_rate,
                         "charts/log_std": model.log_std.mean().item()})
         return metrics
 
+    def demo_weight(self) -> float:
+        """The DAPG weight of the next update: ``demo_coef * demo_decay ** num_updates`` (0 without demos)."""
+        if self.demos is None or self.config.demo_coef <= 0.0:
+            return 0.0
+        return self.config.demo_coef * self.config.demo_decay ** self.num_updates
+
     # ------------------------------------------------------------------------------------------- train
     def train(self, vec_env, run_dir: str | Path, total_steps: int | None = None,
-              callbacks: Sequence[Callback] = (), progress: bool = True) -> dict[str, float]:
+              callbacks: Sequence[Callback] = (), progress: bool = True, stop=None) -> dict[str, float]:
         """Collects and updates until ``global_step >= total_steps`` (default ``config.total_steps``).
 
         Logs every update's metrics to TensorBoard in ``run_dir`` (``charts/``, ``losses/``, ``reward/<term>``,
-        ``charts/SPS``), writes ``run_dir/last.pt`` every ``config.checkpoint_every`` updates and at the end, and
-        ``run_dir/best.pt`` whenever the windowed success rate (mean return if the env reports no ``success``)
-        beats the best so far. Returns the last update's metrics.
+        ``charts/SPS``), writes ``run_dir/last.pt`` every ``config.checkpoint_every`` updates, after an update that
+        ends ``config.checkpoint_seconds`` or more after the last write, and at the end, and ``run_dir/best.pt``
+        whenever the windowed success rate (mean return if the env reports no ``success``) beats the best so far.
+        Returns the last update's metrics (before any update: the episode window, a resumed run's saved one).
+
+        SIGINT and SIGTERM stop the run cleanly: the update in progress finishes and ``last.pt`` is written. With
+        ``stop``, a caller's :class:`~seqdex_drake.rl.stop_signals.StopSignals` (already installed), the method then
+        returns and ``stop.received`` names the signal. Without, handlers are installed for the call only and the
+        signal goes on to the previous ones once ``last.pt`` is saved (SIGINT: ``KeyboardInterrupt`` as before, so a
+        caller that trains in phases stops too; SIGTERM: exit). A second signal raises ``KeyboardInterrupt`` at once.
+        If the rollout in progress fails once a stop was requested (a terminal's Ctrl-C also reaches the env worker
+        processes, which exit), ``last.pt`` holds the learner as the last update left it, without an env state (a
+        resume starts fresh episodes).
         """
+        import signal
+
+        from seqdex_drake.rl.stop_signals import StopSignals
+
         total_steps = total_steps or self.config.total_steps
         if self._saved_env_state is not None and vec_env is not self._env:
             self._restore_env(vec_env, self._saved_env_state)
         run_dir = Path(run_dir)
         run_dir.mkdir(parents=True, exist_ok=True)
+        own_stop = stop is None
+        stop = StopSignals().__enter__() if own_stop else stop
         writer = SummaryWriter(str(run_dir))
         bar = tqdm(total=total_steps, initial=min(self.global_step, total_steps), unit="step", disable=not progress,
                    dynamic_ncols=True)
-        start_time, start_step, metrics = time.perf_counter(), self.global_step, {}
+        start_time, start_step, metrics = time.perf_counter(), self.global_step, self.stats.window_metrics()
+        saved_at, abandoned = time.monotonic(), False
         try:
-            while self.global_step < total_steps:
+            while self.global_step < total_steps and stop.received is None:
                 step_before = self.global_step
-                metrics = {**self.collect(vec_env), **self.update(), **self.stats.window_metrics()}
+                before = {"rng": capture_rng_state({"policy": self.generator}), "stats": self.stats.state_dict(),
+                          "nonfinite_values": self.nonfinite_values}  # What collect() changes but the update needs.
+                try:
+                    rollout = self.collect(vec_env)
+                except Exception:
+                    if stop.received is None:
+                        raise
+                    self._env = None  # The rollout is abandoned: no env state to save; the next collect resets.
+                    state = {**self.state_dict(), **before}
+                    state["counters"]["num_episodes"] = before["stats"]["num_episodes"]
+                    save_checkpoint(run_dir / "last.pt", state)
+                    abandoned = True
+                    break
+                metrics = {**rollout, **self.update(), **self.stats.window_metrics()}
                 metrics["charts/SPS"] = (self.global_step - start_step) / max(time.perf_counter() - start_time, 1e-9)
                 for key, value in metrics.items():
                     writer.add_scalar(key, value, self.global_step)
                 bar.update(min(self.global_step, total_steps) - min(step_before, total_steps))
-                bar.set_postfix(SPS=f"{metrics['charts/SPS']:.0f}",
-                                success=f"{metrics.get('charts/success_rate', math.nan):.2f}",
-                                ret=f"{metrics.get('charts/episode_return', math.nan):.2f}")
+                bar.set_postfix({"SPS": f"{metrics['charts/SPS']:.0f}", **{
+                    name: f"{metrics[key]:.2f}" for name, key in (("success", "charts/success_rate"),
+                                                                 ("ret", "charts/episode_return")) if key in metrics}})
                 selection = self.stats.selection_metric()
                 if selection is not None and selection[1] > self.best["value"]:
                     self.best = {"metric": selection[0], "value": selection[1]}
                     self.save(run_dir / "best.pt")
-                if self.num_updates % self.config.checkpoint_every == 0:
+                if (self.num_updates % self.config.checkpoint_every == 0
+                        or time.monotonic() - saved_at >= self.config.checkpoint_seconds):
                     self.save(run_dir / "last.pt")
+                    saved_at = time.monotonic()
                 if any(callback(self, metrics) is False for callback in callbacks):
                     break
-            self.save(run_dir / "last.pt")
+            if not abandoned:
+                self.save(run_dir / "last.pt")
         finally:
             writer.close()
             bar.close()
+            if own_stop:
+                stop.__exit__(None, None, None)
+        if own_stop and stop.signum is not None:  # last.pt is saved: now the previous handler's turn.
+            signal.raise_signal(stop.signum)
         return metrics
 
     # ------------------------------------------------------------------------------------- checkpoints

@@ -206,10 +206,14 @@ class ObservationAssembler(LeafSystem):
 
         Built in plain Python around one compiled kinematics call: right after a physics step this code runs
         with the caches cold, where every distinct numpy function or Drake call costs several microseconds
-        (see the README's "Where the env time goes"), and a list of ~160 floats is cheap."""
+        (see docs/performance.md, "How the env time is spent"), and a list of ~160 floats is cheap."""
         kinematics = self._kinematics.get(target.object_body)
         if kinematics is None:
-            raise RuntimeError("ObservationAssembler: no target object set; call set_target() at reset")
+            raise RuntimeError(
+                "ObservationAssembler: no target object set. In a chain controller, call SetChainTarget(controller, "
+                "root_context, object_body[, goal]) after creating the context and before simulating; in a sub-task "
+                "environment, call env.reset() first (the task's reset calls env.set_target(name[, goal])); a "
+                "standalone assembler needs assembler.set_target(context, ObservationTarget(...))")
         x = plant_state
         values = [x[i] for i in self._joint_index]
         # The 4 fingertip frames, the palm and the object, one 13-row each: position, quaternion (the hemisphere

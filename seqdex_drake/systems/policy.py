@@ -35,6 +35,8 @@ from pydrake.systems.framework import BasicVector, Context, DiscreteValues, Leaf
 from seqdex_drake.rl.networks import ActorCritic
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, scale_action_to_limits, unscale_limits_to_action
 from seqdex_drake.systems.inference import PolicySnapshot
+from seqdex_drake.tasks.phases import ScriptedPhases, apply_phases
+from seqdex_drake.tasks.residual import apply_residual, make_base
 
 ACTION_SIZE = 19
 HAND_SIZE = 16
@@ -60,6 +62,17 @@ class PolicyParams:
     """Wrist (hand centre) translation per update at action 1 (m), ``TaskConfig.wrist_step``."""
     inference: str = "numpy"
     """"numpy": a float32 numpy snapshot of the actor (fast at batch 1); "torch": the torch model itself."""
+    time_steps: int = 0
+    """The episode length of a policy trained with ``TaskConfig.observe_time``: its input is the stage's
+    observation plus ``ticks / time_steps`` (ticks since it became active), as the env appends its progress;
+    0: the observation alone."""
+    phases: ScriptedPhases | None = None
+    """The scripted phases the policy was trained with (``TaskConfig.phases``, e.g. tool Grasp's scripted lift),
+    applied to its action on the count of ticks since it became active, as the env applies them on its step
+    count; None: none."""
+    residual: str = ""
+    """The scripted base a residual policy was trained on (``TaskConfig.residual``, ``tasks/residual.py``): the
+    system applies ``clip(base(observation, ticks) + policy action)``, as the env does; "": none."""
 
 
 def _check_model(model: ActorCritic, observation_size: int, source: str) -> None:
@@ -107,7 +120,10 @@ class PolicySystem(LeafSystem):
             raise ValueError(f"control_period must be positive, got {params.control_period}")
         if params.inference not in ("numpy", "torch"):
             raise ValueError(f"inference must be 'numpy' or 'torch', got {params.inference!r}")
-        _check_model(model, observation_size, source)
+        if params.time_steps < 0:
+            raise ValueError(f"time_steps must be >= 0, got {params.time_steps}")
+        _check_model(model, observation_size + (1 if params.time_steps else 0), source)
+        self._residual_base = make_base(params.residual) if params.residual else None
         self.model = model.eval()
         self._snapshot = PolicySnapshot(model) if params.inference == "numpy" else None
         self.trained = bool(trained)
@@ -122,8 +138,9 @@ class PolicySystem(LeafSystem):
         self._previous_port = self.DeclareVectorInputPort("previous_action", ACTION_SIZE)
         self._previous_filtered_port = self.DeclareVectorInputPort("previous_filtered_action", ACTION_SIZE)
         initial = np.r_[unscale_limits_to_action(ALLEGRO_OPEN_Q), np.zeros(3)]
-        # State: [filtered action (19), raw action (19)].
+        # State: [filtered action (19), raw action (19)], and the ticks since the system became active.
         self._state_index = self.DeclareDiscreteState(np.r_[initial, initial])
+        self._ticks_index = self.DeclareDiscreteState(1)
         ticket = {self.discrete_state_ticket(self._state_index)}
         self.DeclareVectorOutputPort("action", ACTION_SIZE, self._calc_action, prerequisites_of_calc=ticket)
         self.DeclareVectorOutputPort("raw_action", ACTION_SIZE, self._calc_raw, prerequisites_of_calc=ticket)
@@ -169,7 +186,8 @@ class PolicySystem(LeafSystem):
         """
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)
-            model = ActorCritic(observation_size, ACTION_SIZE, hidden_sizes, critic_hidden_sizes=(8,))
+            inputs = observation_size + (1 if params is not None and params.time_steps else 0)
+            model = ActorCritic(inputs, ACTION_SIZE, hidden_sizes, critic_hidden_sizes=(8,))
         return cls(model, observation_size, params, trained=False, source=f"untrained policy (seed {seed})")
 
     # ------------------------------------------------------------------------------------------ helpers
@@ -210,17 +228,27 @@ class PolicySystem(LeafSystem):
         observation = self._observation_port.Eval(context)
         hold = np.r_[np.clip(unscale_limits_to_action(observation[_HAND_Q]), -1.0, 1.0), np.zeros(3)]
         discrete_state.set_value(self._state_index, np.r_[hold, hold])
+        discrete_state.set_value(self._ticks_index, [0])
 
     def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
         filtered, raw = self._memory(context)
         active = not self._active_port.HasValue(context) or self._active_port.Eval(context)[0] > 0.5
+        ticks = int(context.get_discrete_state(self._ticks_index).get_value()[0])
         if active:
-            raw = self.raw_action(self._observation_port.Eval(context))
-            if not np.all(np.isfinite(raw)):
+            observation = self._observation_port.Eval(context)
+            if self._params.time_steps:  # A time-aware policy (TaskConfig.observe_time): its progress appended.
+                observation = np.append(observation, ticks / self._params.time_steps)
+            action = self.raw_action(observation)
+            if not np.all(np.isfinite(action)):
                 raise RuntimeError(f"policy {self.source} produced a non-finite action at t = "
                                    f"{context.get_time():.3f} s (non-finite observation or weights)")
-            filtered = self.filter(raw, filtered)
+            if self._residual_base is not None:  # As the env: the policy corrects its scripted base.
+                action = np.array(apply_residual(self._residual_base, observation, ticks, action.tolist()))
+            if self._params.phases is not None:  # As the env: the scripted lift, the frozen hand.
+                action = np.array(apply_phases(self._params.phases, ticks, action.tolist(), raw.tolist())[0])
+            raw, filtered = action, self.filter(action, filtered)
         discrete_state.set_value(self._state_index, np.concatenate((filtered, raw)))
+        discrete_state.set_value(self._ticks_index, [ticks + 1 if active else 0])
 
     def _state(self, context: Context) -> np.ndarray:
         return context.get_discrete_state(self._state_index).get_value()

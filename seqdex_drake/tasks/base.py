@@ -10,6 +10,7 @@ import dataclasses
 import numpy as np
 
 from seqdex_drake.envs.randomization_config import RandomizationConfig
+from seqdex_drake.tasks.phases import ScriptedPhases
 from seqdex_drake.tasks.rewards import RewardWeights
 
 
@@ -45,6 +46,47 @@ class TaskConfig:
     randomization: RandomizationConfig = dataclasses.field(default_factory=RandomizationConfig)
     """Domain randomization (``envs/randomization.py``). Default: every group off, so resets and rewards are
     exactly reproducible; train with ``RandomizationConfig.paper()`` (the paper's table, all on)."""
+    observe_time: bool = False
+    """Append the episode's progress, ``step / episode_length`` (0 at reset), to the observation. A policy whose
+    episode has time-based scripted phases (``phases``) needs it: without it, when the scripted lift comes is
+    not in its state (a time-aware observation, as Pardo et al. 2018 recommend for time limits)."""
+    phases: ScriptedPhases | None = None
+    """Scripted phases of the episode as the release has them (``tasks/phases.py``: a scripted lift, a frozen
+    hand); None: the policy acts every step (the paper's MDP)."""
+    residual: str = ""
+    """A scripted base controller (``tasks/residual.py``, e.g. ``"tool_grasp_script"``) that the policy's action
+    corrects: the env applies ``clip(base(observation, step) + action)``; "": the action itself (the paper's)."""
+
+    def __post_init__(self):
+        """Refuses values no episode can run with (``ValueError`` naming the field, the value and the range)."""
+        where = f"TaskConfig {self.name}" if self.name else "TaskConfig"
+
+        def require(ok: bool, field: str, expected: str) -> None:
+            if not ok:
+                raise ValueError(f"{where}: {field} must be {expected}, got {getattr(self, field)!r}")
+
+        def number(value) -> bool:
+            return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
+
+        def finite(value) -> bool:
+            return number(value) and bool(np.isfinite(value))
+
+        def integer(value) -> bool:
+            return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+        require(integer(self.episode_length) and self.episode_length >= 1, "episode_length", "an integer >= 1")
+        require(finite(self.ema) and 0.0 < self.ema <= 1.0, "ema", "in (0, 1] (1: no smoothing)")
+        require(finite(self.wrist_step) and self.wrist_step > 0.0, "wrist_step", "a finite length > 0 (m)")
+        require(finite(self.wrist_floor), "wrist_floor", "a finite height (m; 0: none)")
+        require(finite(self.hover_height) and self.hover_height >= 0.0, "hover_height", "a finite height >= 0 (m)")
+        require(finite(self.drop_height), "drop_height", "a finite height (m)")
+        require(len(self.object_types) > 0 and all(integer(t) for t in self.object_types), "object_types",
+                "a non-empty list of integer object variants")
+        require(all(finite(t) for t in self.success_threshold), "success_threshold", "a list of finite numbers")
+        from seqdex_drake.tasks.residual import RESIDUAL_BASES
+
+        require(self.residual == "" or self.residual in RESIDUAL_BASES, "residual",
+                f"'' or one of {', '.join(RESIDUAL_BASES)}")
 
 
 class Task(abc.ABC):

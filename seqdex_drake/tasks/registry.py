@@ -1,5 +1,7 @@
 """The sub-task registry: names to modules; creation, scripts and tests are driven from here."""
 
+import sys
+
 from seqdex_drake.tasks import grasp, insert, lower, orient, reach, search, tool_grasp, tool_reorient
 from seqdex_drake.tasks.base import Task, TaskConfig
 
@@ -32,6 +34,14 @@ def default_config(name: str) -> TaskConfig:
     return REGISTRY[name][0]()
 
 
+def budget_config(name: str) -> TaskConfig:
+    """The small-budget variant of sub-task ``name`` (its module's ``budget_config()``: the release's scripted
+    phases, shaping terms), or its default config where it has none."""
+    config = default_config(name)  # Validates the name.
+    budget = getattr(sys.modules[REGISTRY[name][0].__module__], "budget_config", None)
+    return budget() if budget is not None else config
+
+
 def make_task(name: str, config: TaskConfig | None = None) -> Task:
     """Creates the task ``name`` with ``config`` (default: its default_config())."""
     config = default_config(name) if config is None else config
@@ -54,7 +64,11 @@ def observation_spec(name: str, dim: int):
     """The :class:`~seqdex_drake.chaining.spec.ObservationSpec` of sub-task ``name``'s observations of size
     ``dim`` (goal and pixel parts as the paper's table has), recorded in buffers, F files and checkpoints."""
     from seqdex_drake.chaining.spec import ObservationSpec
+    from seqdex_drake.systems.observations import BASE_SIZE, GOAL_SIZE
 
     task_class = REGISTRY[name][1]
     extras = (" goal(14)" if task_class.goal else "") + (" target_pixels(1)" if task_class.pixels else "")
+    paper_size = BASE_SIZE + (GOAL_SIZE if task_class.goal else 0) + (1 if task_class.pixels else 0)
+    if dim == paper_size + 1:  # TaskConfig.observe_time: the episode's progress appended.
+        extras += " progress(1)"
     return ObservationSpec(dim, f"{name}: {_BASE_LAYOUT}{extras}")

@@ -42,6 +42,10 @@ class RewardWeights:
     """Rotation sharpness alpha_1 (Insert)."""
     clearance: float = 0.0
     """Weight of the hover-clearance term (the hand-over chain's Reach only; not a paper term)."""
+    lift: float = 0.0
+    """Weight of the lift term of tool Grasp's small-budget variant (``tool_grasp.budget_config``; not a paper
+    term): the object's rise above its start as a fraction of the success lift, capped at 1, while its orientation
+    stays within the success tolerance."""
 
 
 def penalties(weights: RewardWeights, action: np.ndarray, hand_torque: np.ndarray) -> dict[str, float]:

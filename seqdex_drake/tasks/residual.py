@@ -1,0 +1,59 @@
+"""Residual policies: a learned correction added to a scripted base controller (``../shared/TRAINING.md``).
+
+Residual policy learning (Silver et al. 2018; Johannink et al. 2019) lets PPO start from what a script already
+does: the applied action is ``clip(base(observation, step) + policy action, -1, 1)``, and the policy, whose last
+layer starts near zero, only learns the correction. A sub-task opts in with ``TaskConfig.residual`` naming a
+base from :data:`RESIDUAL_BASES`; the env (:class:`~seqdex_drake.envs.subtask_env.SubtaskEnv`) adds the base to
+every action it is given, and a deployed policy system
+(:class:`~seqdex_drake.systems.policy.PolicySystem`, ``PolicyParams.residual``) adds it on its own tick count,
+so training and the chain apply the same sum. The env's action space is then the correction: a gymnasium
+client or :func:`seqdex_drake.load_policy` deals in corrections, and the env turns them into robot actions.
+
+A base is a function of the observation (the env's policy observation, progress entry included) and the step
+only, with no hidden state, so the env and a policy system that see the same observation at the same step
+compute the same action. The residual is added before the scripted phases (``tasks/phases.py``), which still
+override the wrist in the scripted lift.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Protocol
+
+import numpy as np
+
+
+class BaseController(Protocol):
+    """A scripted controller usable as a residual base: Markov in (observation, step)."""
+
+    def act(self, observation, step: int) -> np.ndarray:
+        """The 19-dim action in [-1, 1] for ``observation`` at episode step ``step`` (0 for the first)."""
+
+
+def _tool_grasp_script() -> BaseController:
+    from seqdex_drake.scene.tool_grasp_script import ScriptedToolGrasp
+
+    return ScriptedToolGrasp()
+
+
+#: Name -> factory of the scripted bases a ``TaskConfig.residual`` may name.
+RESIDUAL_BASES: dict[str, Callable[[], BaseController]] = {
+    "tool_grasp_script": _tool_grasp_script,  # The scripted hammer pickup (scene/tool_grasp_script.py).
+}
+
+
+def make_base(name: str) -> BaseController:
+    """The base controller ``name``; a ValueError lists the valid names."""
+    if name not in RESIDUAL_BASES:
+        raise ValueError(f"unknown residual base {name!r}; valid bases: {', '.join(RESIDUAL_BASES)} "
+                         f"(or '' for no base)")
+    return RESIDUAL_BASES[name]()
+
+
+def apply_residual(base: BaseController | None, observation, step: int, action: list[float]) -> list[float]:
+    """The action to apply at ``step``: ``clip(base(observation, step) + action, -1, 1)`` as a new list (the
+    action unchanged, as a list, when ``base`` is None)."""
+    if base is None:
+        return list(action)
+    scripted = np.asarray(base.act(observation, step), dtype=float).tolist()
+    return [min(max(s + a, -1.0), 1.0) for s, a in zip(scripted, action, strict=True)]

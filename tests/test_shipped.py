@@ -1,0 +1,105 @@
+"""Shipped chain checkpoints: writing a folder, its checks (missing, truncated, wrong-task, stale-config files),
+the chain runner deploying a stage with its training phases, and simulate_chain's errors."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from seqdex_drake.chaining.shipped import ShippedChainError, StageRecord, load_shipped_chain, ship_chain
+from seqdex_drake.rl.config import PPOConfig
+from seqdex_drake.rl.ppo import PPO
+from seqdex_drake.tasks.phases import release_tool_grasp_phases
+from seqdex_drake.tasks.registry import observation_spec
+
+ROOT = Path(__file__).resolve().parents[1]
+TASKS = ["tool_grasp", "tool_reorient"]
+SIZES = {"tool_grasp": 159, "tool_reorient": 173}
+
+
+def _checkpoint(path: Path, task: str, obs_dim: int) -> Path:
+    """A small policy checkpoint for ``task`` (untrained, its observation spec recorded as seqdex train does)."""
+    config = PPOConfig(actor_hidden_sizes=(16,), critic_hidden_sizes=(16,), num_envs=1)
+    ppo = PPO(config, obs_dim, 19, [-1.0] * 19, [1.0] * 19)
+    ppo.obs_spec = observation_spec(task, obs_dim).to_dict()
+    ppo.global_step = 4096
+    return ppo.save(path)
+
+
+@pytest.fixture
+def shipped(tmp_path) -> Path:
+    # tool_grasp's budget variant observes its progress: one more input than the paper's layout.
+    stages = [StageRecord(task, _checkpoint(tmp_path / f"{task}.pt", task, SIZES[task] + (task == "tool_grasp")),
+                          "budget", 3600.0, 2) for task in TASKS]
+    folder = tmp_path / "checkpoints" / "tool_positioning"
+    ship_chain(folder, "tool_positioning", stages, commit="abc123")
+    return folder
+
+
+def test_a_shipped_folder_loads_with_its_configs_and_training_costs(shipped):
+    chain = load_shipped_chain(shipped, "tool_positioning", TASKS, SIZES)
+    assert chain.policies == [shipped / "stages" / task / "best.pt" for task in TASKS]
+    assert chain.configs[0].phases == release_tool_grasp_phases() and chain.configs[1].phases is None
+    assert chain.missing == [] and chain.feasibility == [None, None]
+    stage = chain.manifest["stages"]["tool_grasp"]
+    assert (stage["env_steps"], stage["wall_clock_s"], stage["core_hours"]) == (4096, 3600.0, 2.0)
+    assert chain.manifest["commit"] == "abc123"
+
+
+def test_missing_truncated_and_foreign_files_are_refused_naming_them(shipped, tmp_path):
+    policy = shipped / "stages" / "tool_grasp" / "best.pt"
+    data = policy.read_bytes()
+    policy.write_bytes(data[: len(data) // 2])
+    with pytest.raises(ShippedChainError, match=r"best.pt does not match its hash .* truncated"):
+        load_shipped_chain(shipped, "tool_positioning", TASKS, SIZES)
+    policy.unlink()
+    with pytest.raises(ShippedChainError, match=r"tool_grasp/best.pt is missing \(the tool_grasp policy"):
+        load_shipped_chain(shipped, "tool_positioning", TASKS, SIZES)
+    # Another task's policy in the tool_grasp slot (its hash updated, as a careless copy would leave it).
+    other = tmp_path / "other"
+    ship_chain(other, "tool_positioning",
+               [StageRecord("tool_grasp", _checkpoint(tmp_path / "reorient.pt", "tool_reorient", 173))])
+    with pytest.raises(ShippedChainError, match="another task's policy or another observation layout"):
+        load_shipped_chain(other, "tool_positioning", TASKS, SIZES)
+    with pytest.raises(ShippedChainError, match="not 'building_blocks'"):
+        load_shipped_chain(shipped, "building_blocks", ["search", "orient", "grasp", "insert"], SIZES)
+
+
+def test_a_stale_task_config_or_version_is_refused(shipped):
+    path = shipped / "manifest.json"
+    manifest = json.loads(path.read_text())
+    manifest["stages"]["tool_grasp"]["task_config"]["episode_length"] = 99
+    path.write_text(json.dumps(manifest))
+    with pytest.raises(ShippedChainError, match="differs from this code's; use the code of commit abc123"):
+        load_shipped_chain(shipped, "tool_positioning", TASKS, SIZES)
+    manifest["version"] = 99
+    path.write_text(json.dumps(manifest))
+    with pytest.raises(ShippedChainError, match="version 99"):
+        load_shipped_chain(shipped, "tool_positioning", TASKS, SIZES)
+    path.write_text("{not json")
+    with pytest.raises(ShippedChainError, match="cannot be read as JSON"):
+        load_shipped_chain(shipped, "tool_positioning", TASKS, SIZES)
+
+
+def test_the_chain_runner_deploys_shipped_policies_with_their_phases(shipped):
+    from seqdex_drake.evaluation.runner import ChainRunner, RunConfig
+
+    runner = ChainRunner(RunConfig(family="tool_positioning", run_dir=str(shipped)))
+    assert runner.untrained == [] and runner.shipped is not None
+    assert runner.policies[0].params.phases == release_tool_grasp_phases()
+    assert runner.policies[1].params.phases is None
+    assert (runner.policies[0].params.time_steps, runner.policies[1].params.time_steps) == (150, 0)
+
+
+def test_simulate_chain_runs_shipped_checkpoints_and_refuses_broken_ones(shipped):
+    command = [sys.executable, str(ROOT / "scripts" / "simulate_chain.py"), "--task", "tool_positioning",
+               "--checkpoints", str(shipped), "--test", "--headless"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert "every stage has a trained policy" in done.stdout
+    (shipped / "stages" / "tool_reorient" / "best.pt").unlink()
+    broken = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    assert broken.returncode != 0
+    assert "tool_reorient/best.pt is missing" in broken.stderr and "Traceback" not in broken.stderr
