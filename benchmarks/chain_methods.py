@@ -54,8 +54,10 @@ def run_seed(args, seed: int) -> None:
     """Runs (or reads back) every method for one seed."""
     from seqdex_drake.chaining.bidirectional import Pipeline
     from seqdex_drake.chaining.chain import LoadChain
+    from seqdex_drake.envs.factory import pipeline_env_kit
 
     chain = LoadChain("handover")
+    env_kit = pipeline_env_kit()
 
     def log(message: str) -> None:
         print(f"[seed {seed}] {message}", flush=True)
@@ -68,10 +70,11 @@ def run_seed(args, seed: int) -> None:
         run_dir = directory / f"{method}_s{seed}"
         if (run_dir / "results.json").is_file():
             log(f"{method}: done earlier")
-            pipelines[method] = Pipeline.open(run_dir, log=log) if method in ("policy_seq", "seqdex") else None
+            pipelines[method] = (Pipeline.open(run_dir, log=log, env_kit=env_kit) if method in ("policy_seq", "seqdex")
+                                 else None)
             continue
         resume = (run_dir / "pipeline.json").is_file()
-        pipeline = Pipeline(chain, _config(args, method, seed), run_dir, resume=resume, log=log)
+        pipeline = Pipeline(chain, _config(args, method, seed), run_dir, resume=resume, log=log, env_kit=env_kit)
         if method in SHARED_FORWARD and not resume:  # F's and D's data: the same forward policies' rollouts.
             source = pipelines["seqdex"] if method in ("seqdex_no_temporal", "tstar") else pipelines["policy_seq"]
             pipeline.adopt_forward(source)

@@ -50,7 +50,8 @@ from seqdex_drake import (
     MakeStation,
     SetChainTarget,
 )
-from seqdex_drake.chaining.feasibility import FeasibilityConfig, FeasibilityFile, build_feasibility_model
+from seqdex_drake.chaining.feasibility import FeasibilityConfig, build_feasibility_model
+from seqdex_drake.chaining.feasibility_io import FeasibilityFile
 from seqdex_drake.chaining.spec import ObservationSpec
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q
 from seqdex_drake.scene.objects import SceneObjects

@@ -31,8 +31,8 @@ from pydrake.math import RigidTransform, RollPitchYaw
 
 from seqdex_drake.modeling.blocks import BLOCK_SPECS, BODY_HEIGHT, STUD_PITCH
 from seqdex_drake.modeling.fixtures import BASEPLATE_STUDS, BASEPLATE_THICKNESS
+from seqdex_drake.observation_layout import pose_vector
 from seqdex_drake.scenario import REPO_ROOT
-from seqdex_drake.systems.observations import pose_vector
 
 MANUALS_DIR = REPO_ROOT / "diagrams" / "manuals"
 #: The baseplate's bottom centre in the world (``models/fixtures_boards.dmd.yaml`` and the chain scenario).

@@ -20,7 +20,8 @@ from seqdex_drake import (
     MakeStation,
     SetChainTarget,
 )
-from seqdex_drake.chaining.feasibility import FeasibilityConfig, build_feasibility_model, save_feasibility, score
+from seqdex_drake.chaining.feasibility import FeasibilityConfig, build_feasibility_model, score
+from seqdex_drake.chaining.feasibility_io import save_feasibility
 from seqdex_drake.cli import observation_spec
 from seqdex_drake.rl.config import PPOConfig
 from seqdex_drake.rl.networks import ActorCritic

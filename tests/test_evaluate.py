@@ -7,7 +7,8 @@ import json
 
 import pytest
 
-from seqdex_drake.chaining.feasibility import FeasibilityConfig, build_feasibility_model, save_feasibility
+from seqdex_drake.chaining.feasibility import FeasibilityConfig, build_feasibility_model
+from seqdex_drake.chaining.feasibility_io import save_feasibility
 from seqdex_drake.cli import CliError, evaluate, observation_spec
 
 

@@ -11,12 +11,11 @@ from seqdex_drake.chaining.feasibility import (
     TemporalFeasibility,
     build_feasibility_model,
     feasibility_threshold,
-    load_feasibility,
     pad_history,
-    save_feasibility,
     score,
     train_feasibility,
 )
+from seqdex_drake.chaining.feasibility_io import load_feasibility, save_feasibility
 from seqdex_drake.chaining.spec import ObservationSpec
 
 SMALL = dict(d_model=32, heads=4, layers=1, feedforward=64, dropout=0.0, mlp_hidden=(64, 64), batch_size=64, lr=1e-3)

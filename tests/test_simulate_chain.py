@@ -52,7 +52,8 @@ def test_bad_manual_content_and_mismatched_feasibility_file(tmp_path):
     result = simulate("--manual", str(manual), "--test", "--headless")
     assert result.returncode == 2 and "unknown block type 12" in result.stderr
     assert "Traceback" not in result.stderr
-    from seqdex_drake.chaining.feasibility import FeasibilityConfig, build_feasibility_model, save_feasibility
+    from seqdex_drake.chaining.feasibility import FeasibilityConfig, build_feasibility_model
+    from seqdex_drake.chaining.feasibility_io import save_feasibility
     from seqdex_drake.cli import observation_spec
 
     config = FeasibilityConfig(history=2, d_model=8, heads=2, layers=1, feedforward=8)

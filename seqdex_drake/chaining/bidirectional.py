@@ -3,6 +3,8 @@ final evaluation, phase by phase in a :class:`~seqdex_drake.chaining.pipeline.Ru
 interrupted run resumes where it stopped (a PPO phase continues from its own ``last.pt``).
 
 Nothing here knows the sub-tasks: stages come from the chain spec and are built through the task registry.
+Nor does it import the env package: the vector envs of the PPO phases come from the
+:class:`~seqdex_drake.chaining.stage_envs.EnvKit` the caller passes in (``env_kit``).
 """
 
 import dataclasses
@@ -17,31 +19,27 @@ from seqdex_drake.atomic import atomic_write
 from seqdex_drake.chaining.chain import ChainSpec
 from seqdex_drake.chaining.feasibility import feasibility_threshold, pad_history, train_feasibility
 from seqdex_drake.chaining.feasibility_io import load_feasibility, save_feasibility
-from seqdex_drake.chaining.pipeline import CHAINED_METHODS, PipelineConfig, RunDirectory, pipeline_budget
+from seqdex_drake.chaining.pipeline import (
+    CHAINED_METHODS,
+    EVAL_SEED,
+    PipelineConfig,
+    PipelineError,
+    RunDirectory,
+    pipeline_budget,
+)
 from seqdex_drake.chaining.rollouts import collect_transitions, deterministic_policy, evaluate_chain, run_prefix
+from seqdex_drake.chaining.single_policy import run_single_policy
+from seqdex_drake.chaining.stage_envs import EnvKit, pooled_env
 from seqdex_drake.chaining.terminal_buffer import TerminalBuffer
 from seqdex_drake.chaining.tstar import fit_tstar, tstar_bonus
 from seqdex_drake.chaining.wrappers import InitialStateVectorEnv, TransitionBonusVectorEnv
+from seqdex_drake.env_state import EnvState
 from seqdex_drake.rl.config import PPOConfig
 from seqdex_drake.rl.ppo import PPO
-from seqdex_drake.tasks.registry import default_config, make_env, observation_spec
+from seqdex_drake.tasks.registry import default_config, observation_spec
 
-#: Evaluation episodes are seeded from here on (training resets use the run seed and its step counts).
-EVAL_SEED = 100_000
 #: Observations kept per transition (the history ablation goes up to H = 15).
 TRANSITION_HISTORY = 15
-
-#: In-process envs, built once per (task, config, slot) and reused by every phase and pipeline of this process
-#: (building a station diagram costs seconds; a reset with a seed makes a reused env as good as new).
-_ENV_POOL: dict[tuple, object] = {}
-
-
-def pooled_env(task: str, config, slot: int):
-    """The process's env number ``slot`` for ``task`` with ``config`` (built on first use)."""
-    key = (task, repr(config), slot)
-    if key not in _ENV_POOL:
-        _ENV_POOL[key] = make_env(task, config)
-    return _ENV_POOL[key]
 
 
 class Pipeline:
@@ -54,15 +52,18 @@ class Pipeline:
         resume: continue a run in ``run_dir`` instead of starting one.
         progress: show PPO progress bars.
         log: where one-line progress messages go.
+        env_kit: the env classes of the PPO phases (``seqdex pipeline`` passes
+            :func:`seqdex_drake.envs.factory.pipeline_env_kit`); may be None for a pipeline that only collects,
+            fits F or evaluates, which needs the in-process stage envs alone.
     """
 
     @classmethod
-    def open(cls, run_dir, progress: bool = False, log: Callable[[str], None] = print) -> "Pipeline":
+    def open(cls, run_dir, progress: bool = False, log: Callable[[str], None] = print,
+             env_kit: EnvKit | None = None) -> "Pipeline":
         """The pipeline run already in ``run_dir`` (its chain and config from ``pipeline.json``)."""
         from pathlib import Path
 
         from seqdex_drake.chaining.chain import LoadChain
-        from seqdex_drake.chaining.pipeline import PipelineError
 
         record_path = Path(run_dir) / "pipeline.json"
         if not record_path.is_file():
@@ -76,11 +77,12 @@ class Pipeline:
         if chain.stages != record["stages"]:
             raise PipelineError(f"chain {config.chain!r} now has stages {chain.stages}, the run in {run_dir} was "
                                 f"made with {record['stages']}")
-        return cls(chain, config, run_dir, resume=True, progress=progress, log=log)
+        return cls(chain, config, run_dir, resume=True, progress=progress, log=log, env_kit=env_kit)
 
     def __init__(self, chain: ChainSpec, config: PipelineConfig, run_dir, resume: bool = False,
-                 progress: bool = False, log: Callable[[str], None] = print):
+                 progress: bool = False, log: Callable[[str], None] = print, env_kit: EnvKit | None = None):
         self.chain, self.config, self.progress, self.log = chain, config, progress, log
+        self.env_kit = env_kit
         self.stages = chain.stages
         self.task_configs = [self._task_config(task) for task in self.stages]
         self.run = RunDirectory(run_dir, config, chain, resume)
@@ -114,17 +116,21 @@ class Pipeline:
                                  f"simulation; give the stages one shared scenario")
         return self._envs
 
+    def require_env_kit(self) -> EnvKit:
+        """The env classes of the PPO phases; raises :class:`PipelineError` if none were given."""
+        if self.env_kit is None:
+            raise PipelineError("this pipeline was made without env_kit, which its PPO phases need to build their "
+                                "vector envs; pass env_kit=seqdex_drake.envs.factory.pipeline_env_kit()")
+        return self.env_kit
+
     def _vector_env(self, index: int, seed: int):
         task, config = self.stages[index], self.task_configs[index]
+        kit = self.require_env_kit()
         if self.config.backend == "process":
-            from seqdex_drake.envs.vector import ProcessVectorEnv
-
-            return ProcessVectorEnv(task, self.config.num_envs, seed=seed, config=config,
-                                    envs_per_worker=self.config.envs_per_worker)  # None: one process per core.
-        from seqdex_drake.envs.serial import SerialVectorEnv
-
-        return SerialVectorEnv([lambda slot=slot: pooled_env(task, config, 1 + slot)
-                                for slot in range(self.config.num_envs)], seed=seed)
+            return kit.process_vector_env(task, self.config.num_envs, seed=seed, config=config,
+                                          envs_per_worker=self.config.envs_per_worker)  # None: one per core.
+        return kit.serial_vector_env([lambda slot=slot: pooled_env(task, config, 1 + slot)
+                                      for slot in range(self.config.num_envs)], seed=seed)
 
     def policies(self, upto: int | None = None) -> list:
         """The chain's current policies of stages ``0 .. upto`` (default: all), as deterministic callables."""
@@ -164,8 +170,6 @@ class Pipeline:
         episodes starting from ``buffer_path``'s states if given, its reward shaped by ``bonus`` if given; the
         result becomes the chain's policy for that stage."""
         def work():
-            from seqdex_drake.envs.subtask_env import EnvState
-
             task, directory = self.stages[index], self.run.phase_dir(phase)
             ppo, target = self.phase_learner(phase, steps, start_from)
             seed = self.config.seed + 1000 * index
@@ -373,8 +377,6 @@ class Pipeline:
 
     def execute(self) -> dict:
         """Runs (or resumes) the whole pipeline; writes and returns ``results.json``'s content."""
-        from seqdex_drake.chaining.single_policy import run_single_policy
-
         start = time.perf_counter()
         if self.config.method in CHAINED_METHODS:
             self.forward()

@@ -349,9 +349,18 @@ def score(model: _FeasibilityModel, history, h: float):
     return model.predict(history) / h
 
 
-# The file format lives in its own module (it needs the classes above); re-exported here.
-from seqdex_drake.chaining.feasibility_io import FeasibilityFile, load_feasibility, save_feasibility  # noqa: E402
+def walk_back(scores: np.ndarray) -> int:
+    """The paper's stage estimate: the last stage i >= 1 with c^i > 1 (NaN never is), else 0 (restart).
 
-__all__ = ["FeasibilityConfig", "FeasibilityFile", "MlpFeasibility", "TemporalFeasibility", "build_feasibility_model",
-           "feasibility_threshold", "load_feasibility", "pad_history", "save_feasibility", "score",
-           "train_feasibility"]
+    Shared by the deployed switcher (``systems/switcher.py``) and the pipeline's evaluation rollouts
+    (``chaining/rollouts.py``), so both pick stages the same way."""
+    for stage in range(len(scores) - 1, 0, -1):
+        if scores[stage] > 1.0:
+            return stage
+    return 0
+
+
+# The file format (save_feasibility, load_feasibility, FeasibilityFile) lives in ``feasibility_io``, which builds
+# on the classes above; import it from there (re-exporting it here would make the two modules import each other).
+__all__ = ["FeasibilityConfig", "MlpFeasibility", "TemporalFeasibility", "build_feasibility_model",
+           "feasibility_threshold", "pad_history", "score", "train_feasibility", "walk_back"]

@@ -34,6 +34,8 @@ from seqdex_drake.chaining.feasibility import FeasibilityConfig
 METHODS = ("seqdex", "seqdex_no_temporal", "policy_seq", "tstar", "vchain", "scratch", "curriculum")
 #: Methods that train one policy per stage and chain them (the others train one policy over the whole chain).
 CHAINED_METHODS = METHODS[:5]
+#: Evaluation episodes are seeded from here on (training resets use the run seed and its step counts).
+EVAL_SEED = 100_000
 
 
 class PipelineError(ValueError):

@@ -12,8 +12,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from seqdex_drake.chaining.feasibility import pad_history
-from seqdex_drake.systems.switcher import walk_back
+from seqdex_drake.chaining.feasibility import pad_history, walk_back
 
 Policy = Callable[[np.ndarray], np.ndarray]
 
@@ -144,7 +143,7 @@ def run_chain(envs: Sequence, policies: Sequence[Policy], seed: int, feasibility
     (plain sequential execution). Otherwise the paper's switcher runs: in stage i, once the next stage's score
     c^{i+1} = F^{i+1}/h^{i+1} exceeds 1 (or stage i's budget runs out), the stages are visited from the last
     back to the second and the first with c > 1 runs next (a bypass if it is beyond i+1); if none qualifies the
-    chain restarts with stage 0 from the current state (:func:`~seqdex_drake.systems.switcher.walk_back`, the
+    chain restarts with stage 0 from the current state (:func:`~seqdex_drake.chaining.feasibility.walk_back`, the
     rule the chain controller's switcher uses). Each selection other than i+1 uses up one switch; with none
     left the order is sequential. The last stage's budget (or a failure) ends the episode.
     ``feasibility[j-1]`` is F^j (objects with ``.model`` and ``.threshold``, e.g. a

@@ -41,12 +41,12 @@ class StageRecord:
     """Its PPO checkpoint (``best.pt`` or ``last.pt`` of a ``seqdex train`` run)."""
     preset: str = "budget"
     """The ``seqdex train --preset`` it was trained with (its task config)."""
-    residual: bool = True
-    """Whether it trained on its preset's residual base (``cli.task_config``; False: a run with ``--demos``)."""
     wall_clock_s: float = 0.0
     """Training wall-clock (s), from the run's learning curve."""
     cores: int = 2
     """Cores the training used (core-hours = wall-clock x cores)."""
+    residual: bool = True
+    """Whether it trained on its preset's residual base (``cli.task_config``; False: a run with ``--demos``)."""
 
 
 @dataclasses.dataclass

@@ -9,26 +9,23 @@ own reset distribution), moving the start progressively earlier along the chain.
 
 import numpy as np
 
-from seqdex_drake.chaining.bidirectional import EVAL_SEED
-from seqdex_drake.chaining.pipeline import pipeline_budget
+from seqdex_drake.chaining.pipeline import EVAL_SEED, pipeline_budget
 from seqdex_drake.chaining.rollouts import deterministic_policy
-from seqdex_drake.envs.chain_env import ChainEnv
-from seqdex_drake.envs.serial import SerialVectorEnv
+from seqdex_drake.chaining.stage_envs import pooled_env
 from seqdex_drake.rl.ppo import PPO
 
 
-def _chain_env(pipeline, slot: int, start_stage: int = 0) -> ChainEnv:
-    """A ChainEnv over the process's pooled stage envs number ``slot``."""
-    from seqdex_drake.chaining.bidirectional import pooled_env
-
+def _chain_env(pipeline, slot: int, start_stage: int = 0):
+    """A ChainEnv (the pipeline's ``env_kit.chain_env``) over the process's pooled stage envs number ``slot``."""
     envs = [pooled_env(task, config, slot) for task, config in zip(pipeline.stages, pipeline.task_configs,
                                                                    strict=True)]
-    return ChainEnv(pipeline.stages, start_stage=start_stage, envs=envs)
+    return pipeline.require_env_kit().chain_env(pipeline.stages, start_stage=start_stage, envs=envs)
 
 
-def _chain_vector_env(pipeline, start_stage: int, seed: int) -> SerialVectorEnv:
-    return SerialVectorEnv([lambda slot=slot: _chain_env(pipeline, 1 + slot, start_stage)
-                            for slot in range(pipeline.config.num_envs)], seed=seed)
+def _chain_vector_env(pipeline, start_stage: int, seed: int):
+    return pipeline.require_env_kit().serial_vector_env(
+        [lambda slot=slot: _chain_env(pipeline, 1 + slot, start_stage) for slot in range(pipeline.config.num_envs)],
+        seed=seed)
 
 
 def _train_phase(pipeline, phase: str, start_stage: int, steps: int, start_from=None) -> dict:

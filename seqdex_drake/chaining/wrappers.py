@@ -9,6 +9,7 @@ from collections.abc import Callable
 import numpy as np
 
 from seqdex_drake.chaining.feasibility import pad_history
+from seqdex_drake.env_state import EnvState
 
 
 class _Wrapper:
@@ -45,7 +46,7 @@ class InitialStateVectorEnv(_Wrapper):
     def __init__(self, env, buffer, seed: int, state_type: type | None = None, successful_only: bool = True):
         super().__init__(env)
         if state_type is None:
-            from seqdex_drake.envs.subtask_env import EnvState as state_type
+            state_type = EnvState
         self.buffer, self.state_type, self.successful_only = buffer, state_type, successful_only
         self.rng = np.random.default_rng(seed)
 

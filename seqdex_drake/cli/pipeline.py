@@ -84,6 +84,7 @@ def run_pipeline(args) -> int:
     from seqdex_drake.chaining.bidirectional import Pipeline
     from seqdex_drake.chaining.chain import ChainError, LoadChain
     from seqdex_drake.chaining.pipeline import PipelineConfig, PipelineError
+    from seqdex_drake.envs.factory import pipeline_env_kit
     from seqdex_drake.tasks.registry import task_names
 
     overrides = {key: value for key, value in (
@@ -99,7 +100,8 @@ def run_pipeline(args) -> int:
         make = PipelineConfig.tiny if args.test else PipelineConfig
         config = make(chain=args.chain, method=args.method, seed=args.seed, **overrides)
         run_dir = Path(args.run_dir or f"runs/{args.chain}_{args.method}_s{args.seed}")
-        pipeline = Pipeline(chain, config, run_dir, resume=args.resume, progress=sys.stderr.isatty(), log=_log)
+        pipeline = Pipeline(chain, config, run_dir, resume=args.resume, progress=sys.stderr.isatty(), log=_log,
+                            env_kit=pipeline_env_kit())
         results = pipeline.execute()
     except (ChainError, PipelineError, FileNotFoundError) as error:
         raise CliError(str(error)) from error
@@ -113,9 +115,10 @@ def _open(args):
     from seqdex_drake.chaining.bidirectional import Pipeline
     from seqdex_drake.chaining.chain import ChainError
     from seqdex_drake.chaining.pipeline import PipelineError
+    from seqdex_drake.envs.factory import pipeline_env_kit
 
     try:
-        return Pipeline.open(args.run_dir, progress=sys.stderr.isatty(), log=_log)
+        return Pipeline.open(args.run_dir, progress=sys.stderr.isatty(), log=_log, env_kit=pipeline_env_kit())
     except (ChainError, PipelineError) as error:
         raise CliError(str(error)) from error
 

@@ -26,12 +26,12 @@ from seqdex_drake.chaining.chain import LoadChain
 from seqdex_drake.harness import ResolvePackageUrl
 from seqdex_drake.modeling.blocks import BLOCK_SPECS
 from seqdex_drake.modeling.tools import TOOL_SPECS
+from seqdex_drake.observation_layout import pose_vector, quat_multiply
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q
 from seqdex_drake.scenario import LoadScenario
 from seqdex_drake.scene.objects import SceneObjects
 from seqdex_drake.scene.piles import BOX_CENTER, BOX_INNER_HALF, LoadPiles
 from seqdex_drake.station import MakeStation, RefreshSampledOutputs
-from seqdex_drake.systems.observations import pose_vector, quat_multiply
 from seqdex_drake.tasks.blocks_common import BOX_MARGIN
 from seqdex_drake.tasks.insert import YAW_FLIP
 from seqdex_drake.tasks.rewards import quaternion_angle
@@ -84,7 +84,7 @@ class Outcome:
 
 def _observation_sizes() -> dict[str, int]:
     """Each registered task's observation size (the base layout plus its goal or pixel part)."""
-    from seqdex_drake.systems.observations import BASE_SIZE, GOAL_SIZE
+    from seqdex_drake.observation_layout import BASE_SIZE, GOAL_SIZE
     from seqdex_drake.tasks.registry import REGISTRY
 
     return {name: BASE_SIZE + (GOAL_SIZE if task.goal else 0) + (1 if task.pixels else 0)

@@ -12,10 +12,10 @@ import numpy as np
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.plant import MultibodyPlant
 
+from seqdex_drake.observation_layout import floats
 from seqdex_drake.robots.allegro import PALM_BODY, p_PalmPc_Palm
 from seqdex_drake.robots.franka import FRANKA_Q_MAX, FRANKA_Q_MIN
 from seqdex_drake.robots.tree_kinematics import TreeKinematics
-from seqdex_drake.systems.observations import floats
 
 
 class PalmIK:

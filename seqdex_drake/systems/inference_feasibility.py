@@ -27,7 +27,7 @@ from collections.abc import Sequence
 import numpy as np
 from torch import nn
 
-from seqdex_drake.systems.inference import _Dense, _Tensors
+from seqdex_drake.systems.inference_blocks import _Dense, _Tensors
 
 
 @functools.lru_cache(maxsize=16)

@@ -1,21 +1,8 @@
 """Observation assembly: the paper's state vectors (appendix, "State Space in Simulation") from station ports.
 
-Layout (indices as in the paper's tables; poses are 7 = position + quaternion wxyz, velocities linear then
-angular, all in the world frame as in the authors' release):
-
-====================  =========  ==========================================================
-indices               size       content
-====================  =========  ==========================================================
-0-23                  23         joint positions, canonical order (Franka 1-7, Allegro 0-15)
-23-46                 23         joint velocities
-46-98                 4 x 13     fingertip pose, linear velocity, angular velocity
-98-111                13         hand base (palm) pose, linear, angular velocity
-111-124               13         object pose, linear, angular velocity
-124-143               19         previous action (16 hand joints + 3 wrist translation)
-143-159               16         motor tactile: torques the 16 Allegro motors exert
-159-160 (Search)      1          target-object pixels in the top-down label image
-159-173 (Insert)      14         goal pose (7), goal - object position (3), goal * conj(object) quaternion (4)
-====================  =========  ==========================================================
+The layout itself (which entries hold what, the index slices and sizes, ``pose_vector``, ``floats`` and the
+quaternion helpers) lives in :mod:`seqdex_drake.observation_layout`, below ``tasks/`` and ``systems/``, so that the
+sub-tasks read it without importing this Drake system; every name is re-exported here.
 
 Orient, Grasp and tool Grasp use the 159-dim base; Insert and tool Reorient append the goal (173); Search
 appends the pixel count (160): counted in a whole label image, or, with a
@@ -33,13 +20,27 @@ from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import BasicVector, LeafSystem
 from pydrake.systems.sensors import ImageLabel16I
 
+from seqdex_drake.observation_layout import (  # noqa: F401 (the layout's names, re-exported)
+    ACTION_SIZE,
+    BASE_SIZE,
+    FINGERTIPS,
+    GOAL_POSITION_ERROR,
+    GOAL_ROTATION_ERROR,
+    GOAL_SIZE,
+    MOTOR_TACTILE,
+    OBJECT_POSE,
+    OBJECT_QUATERNION,
+    PALM_POSE,
+    floats,
+    point_in_world,
+    pose_vector,
+    quat_conjugate,
+    quat_multiply,
+    quat_product,
+)
 from seqdex_drake.robots.allegro import FINGERTIP_FRAMES, PALM_BODY
 from seqdex_drake.robots.tree_kinematics import TreeKinematics
 from seqdex_drake.systems.target_pixels import TargetPixelCounter
-
-BASE_SIZE = 159
-ACTION_SIZE = 19
-GOAL_SIZE = 14
 
 
 @dataclasses.dataclass
@@ -52,73 +53,6 @@ class ObservationTarget:
     """Goal pose [x, y, z, qw, qx, qy, qz] (Insert, tool Reorient)."""
     label: int = -1
     """Render label of the target object in the label image (Search)."""
-
-
-#: Parts of an observation that the env and the tasks read back (indices as in the table above).
-FINGERTIPS = slice(46, 98)
-"""The 4 fingertip rows of 13 (pose, linear, angular velocity)."""
-PALM_POSE = slice(98, 105)
-"""The palm (hand base) pose [x, y, z, qw, qx, qy, qz]."""
-OBJECT_POSE = slice(111, 118)
-"""The object's pose [x, y, z, qw, qx, qy, qz]."""
-OBJECT_QUATERNION = slice(114, 118)
-"""The object's orientation [qw, qx, qy, qz], qw >= 0."""
-MOTOR_TACTILE = slice(143, 159)
-"""The torques the 16 Allegro motors exert."""
-GOAL_POSITION_ERROR = slice(166, 169)
-"""Goal position - object position (Insert, tool Reorient)."""
-GOAL_ROTATION_ERROR = slice(169, 173)
-"""Goal quaternion * conj(object quaternion) (Insert, tool Reorient)."""
-
-
-def floats(v) -> list[float]:
-    """The entries of a short vector (array, list or tuple) as Python floats, for plain float arithmetic:
-    numpy's per-call overhead would be most of the cost of three- and four-element maths, run every env step."""
-    return v.tolist() if isinstance(v, np.ndarray) else [float(x) for x in v]
-
-
-def point_in_world(pose: list[float], p_BQ: list[float]) -> list[float]:
-    """p_WQ of a point Q fixed in a body B, from B's pose [x, y, z, qw, qx, qy, qz] (e.g. an observation's
-    ``PALM_POSE`` entries), as floats: p_WB + R(q) p_BQ, with R(q) v = v + 2 w (u x v) + 2 u x (u x v) for
-    q = [w, u], in float arithmetic."""
-    x, y, z, w, ux, uy, uz = pose
-    vx, vy, vz = p_BQ
-    tx, ty, tz = 2.0 * (uy * vz - uz * vy), 2.0 * (uz * vx - ux * vz), 2.0 * (ux * vy - uy * vx)  # 2 u x v
-    return [x + vx + w * tx + uy * tz - uz * ty, y + vy + w * ty + uz * tx - ux * tz,
-            z + vz + w * tz + ux * ty - uy * tx]
-
-
-def quat_product(a, b) -> list[float]:
-    """Hamilton product of quaternions [w, x, y, z] (short sequences of floats), as a list of floats."""
-    a0, a1, a2, a3 = a
-    b0, b1, b2, b3 = b
-    return [a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3, a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
-            a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1, a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0]
-
-
-def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of quaternions [w, x, y, z] (see :func:`quat_product`)."""
-    return np.array(quat_product(floats(a), floats(b)))
-
-
-def quat_conjugate(q) -> list[float]:
-    """[w, -x, -y, -z] of a quaternion [w, x, y, z], as a list of floats."""
-    w, x, y, z = floats(q)
-    return [w, -x, -y, -z]
-
-
-def pose_vector(X) -> np.ndarray:
-    """[x, y, z, qw, qx, qy, qz] of a RigidTransform, with qw >= 0."""
-    out = np.empty(7)
-    _write_pose(out, 0, X)
-    return out
-
-
-def _write_pose(out: np.ndarray, start: int, X) -> None:
-    """Writes :func:`pose_vector` of ``X`` into ``out[start:start + 7]``."""
-    q = X.rotation().ToQuaternion().wxyz()
-    out[start:start + 3] = X.translation()
-    out[start + 3:start + 7] = q if q[0] >= 0 else -q
 
 
 class ObservationAssembler(LeafSystem):

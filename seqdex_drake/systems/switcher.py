@@ -44,7 +44,7 @@ import numpy as np
 import torch
 from pydrake.systems.framework import BasicVector, Context, DiscreteValues, LeafSystem
 
-from seqdex_drake.chaining.feasibility import pad_history, score
+from seqdex_drake.chaining.feasibility import pad_history, score, walk_back
 from seqdex_drake.systems.inference import FeasibilityBank, snapshot_feasibility
 
 _STAGE, _STEPS, _SWITCHES = 0, 1, 2
@@ -80,14 +80,6 @@ class SwitcherParams:
     per later stage per tick)."""
     inference: str = "numpy"
     """"numpy": evaluate torch F's from float32 numpy snapshots (fast at batch 1); "torch": the models themselves."""
-
-
-def walk_back(scores: np.ndarray) -> int:
-    """The paper's stage estimate: the last stage i >= 1 with c^i > 1 (NaN never is), else 0 (restart)."""
-    for stage in range(len(scores) - 1, 0, -1):
-        if scores[stage] > 1.0:
-            return stage
-    return 0
 
 
 class FeasibilitySwitcher(LeafSystem):

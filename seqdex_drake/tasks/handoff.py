@@ -16,9 +16,9 @@ import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 
 from seqdex_drake.modeling.blocks import BLOCK_SPECS
+from seqdex_drake.observation_layout import floats
 from seqdex_drake.robots.allegro import ALLEGRO_Q_MAX, ALLEGRO_Q_MIN, PALM_BODY, unscale_limits_to_action
 from seqdex_drake.scene.grasping import ExecuteGrasp, PlanTripodPickup, RampTargets, SolveTripodGrasp
-from seqdex_drake.systems.observations import floats
 
 #: Where Insert's scripted pickup takes the block from: the free table area beside the baseplate.
 PICKUP_XY = np.array([0.22, 0.12])

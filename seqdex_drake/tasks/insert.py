@@ -12,7 +12,7 @@ import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw
 
 from seqdex_drake.modeling.blocks import BLOCK_SPECS, STUD_PITCH
-from seqdex_drake.systems.observations import OBJECT_QUATERNION, floats, pose_vector, quat_product
+from seqdex_drake.observation_layout import OBJECT_QUATERNION, floats, pose_vector, quat_product
 from seqdex_drake.tasks.base import Task, TaskConfig
 from seqdex_drake.tasks.blocks_common import block_name
 from seqdex_drake.tasks.handoff import scripted_block_pickup

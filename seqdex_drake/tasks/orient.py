@@ -5,7 +5,7 @@ be done), random yaw, the open hand 5 cm above it. Reward: lambda1 * (rotation s
 fingertip term and penalties (paper). Success (release): the block's z axis within acos(0.6) of world z.
 """
 
-from seqdex_drake.systems.observations import OBJECT_QUATERNION
+from seqdex_drake.observation_layout import OBJECT_QUATERNION
 from seqdex_drake.tasks.base import Task, TaskConfig
 from seqdex_drake.tasks.blocks_common import place_single_block
 from seqdex_drake.tasks.rewards import RewardWeights, orient_reward, quaternion_angle

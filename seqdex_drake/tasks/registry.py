@@ -55,7 +55,7 @@ def make_env(name: str, config: TaskConfig | None = None, meshcat=None):
     return SubtaskEnv(make_task(name, config), meshcat=meshcat)
 
 
-#: The observation layout of the paper's tables (``seqdex_drake.systems.observations``), for observation specs.
+#: The observation layout of the paper's tables (``seqdex_drake.observation_layout``), for observation specs.
 _BASE_LAYOUT = ("joint_q(23) joint_dq(23) fingertips(4x13) palm(13) object(13) previous_action(19) "
                 "motor_torque(16)")
 
@@ -64,7 +64,7 @@ def observation_spec(name: str, dim: int):
     """The :class:`~seqdex_drake.chaining.spec.ObservationSpec` of sub-task ``name``'s observations of size
     ``dim`` (goal and pixel parts as the paper's table has), recorded in buffers, F files and checkpoints."""
     from seqdex_drake.chaining.spec import ObservationSpec
-    from seqdex_drake.systems.observations import BASE_SIZE, GOAL_SIZE
+    from seqdex_drake.observation_layout import BASE_SIZE, GOAL_SIZE
 
     task_class = REGISTRY[name][1]
     extras = (" goal(14)" if task_class.goal else "") + (" target_pixels(1)" if task_class.pixels else "")

@@ -17,7 +17,7 @@ import operator
 
 import numpy as np
 
-from seqdex_drake.systems.observations import GOAL_POSITION_ERROR, GOAL_ROTATION_ERROR, floats
+from seqdex_drake.observation_layout import GOAL_POSITION_ERROR, GOAL_ROTATION_ERROR, floats
 
 _IDENTITY = [1.0, 0.0, 0.0, 0.0]
 
@@ -55,7 +55,7 @@ def penalties(weights: RewardWeights, action: np.ndarray, hand_torque: np.ndarra
 
 
 def _squared_norm(v) -> float:
-    """||v||^2 of a short vector (array or list), in float arithmetic (see ``observations.floats``)."""
+    """||v||^2 of a short vector (array or list), in float arithmetic (see ``observation_layout.floats``)."""
     v = floats(v)
     return sum(map(operator.mul, v, v))
 

@@ -14,7 +14,7 @@ Reward: the paper's In-hand Orientation formula. Success: orientation error belo
 
 from pydrake.math import RigidTransform, RotationMatrix
 
-from seqdex_drake.systems.observations import pose_vector
+from seqdex_drake.observation_layout import pose_vector
 from seqdex_drake.tasks.base import Task, TaskConfig
 from seqdex_drake.tasks.handoff import synthesized_tool_grasp
 from seqdex_drake.tasks.rewards import RewardWeights, goal_errors, goal_reward
