@@ -23,7 +23,7 @@ import torch
 
 from seqdex_drake.cli import task_config
 from seqdex_drake.envs.vector import ProcessVectorEnv
-from seqdex_drake.rl.config import PPOConfig
+from seqdex_drake.rl.config import RESIDUAL_HYPERPARAMETERS, PPOConfig
 from seqdex_drake.rl.ppo import PPO
 
 
@@ -42,7 +42,8 @@ def measure(task: str, preset: str, updates: int, test: bool) -> dict:
     """The figures of one preset (see the module docstring)."""
     config = task_config(task, test, preset)
     make = PPOConfig.for_budget if preset == "budget" else PPOConfig.for_task
-    ppo_config = make(task)
+    # As seqdex train builds it: a budget run of a residual variant takes the residual hyperparameters.
+    ppo_config = make(task, **(RESIDUAL_HYPERPARAMETERS if preset == "budget" and config.residual else {}))
     if test:  # A few steps: 2 envs, 4-step rollouts.
         ppo_config = dataclasses.replace(ppo_config, num_envs=2, horizon=4, num_minibatches=2)
     # One worker process per core, as seqdex train runs it.

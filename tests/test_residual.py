@@ -38,9 +38,9 @@ def test_budget_tool_grasp_env_with_zero_corrections_is_the_script():
     """The residual env given zeros plays the scripted pickup exactly: the same applied actions and states as the
     script's own actions in the env without a base."""
     config = dataclasses.replace(budget_config("tool_grasp"), episode_length=STEPS)
-    assert config.residual == "tool_grasp_script"
+    assert config.residual == "tool_grasp_script" and not config.hand_actions  # The policy corrects the wrist.
     residual_env = make_env("tool_grasp", config)
-    plain_env = make_env("tool_grasp", dataclasses.replace(config, residual=""))
+    plain_env = make_env("tool_grasp", dataclasses.replace(config, residual="", hand_actions=True))
     script = ScriptedToolGrasp()
     a, _ = residual_env.reset(seed=1)
     b, _ = plain_env.reset(seed=1)
@@ -100,6 +100,7 @@ def test_runs_with_demonstrations_train_whole_actions(tmp_path):
 
     assert task_config("tool_grasp", False, "budget").residual == "tool_grasp_script"
     assert task_config("tool_grasp", False, "budget", residual=False).residual == ""
+    assert task_config("tool_grasp", False, "budget", residual=False).hand_actions  # Demonstrations: whole actions.
     assert task_config("tool_grasp", False, "paper").residual == ""
     (tmp_path / "config.json").write_text(json.dumps({"demos": "demos/tool_grasp.npz"}))
     assert not run_residual(tmp_path / "last.pt")
@@ -121,3 +122,26 @@ def test_rollout_of_the_zero_action_plays_the_residual_base(tmp_path, capsys):
     assert result["preset"] == "budget" and result["episodes"] == 1
     assert main(["rollout", "--task", "tool_grasp", "--zero-action", "--checkpoint", "x.pt"]) == 2
     assert "--zero-action rolls out no policy" in capsys.readouterr().err
+
+
+def test_a_budget_residual_run_takes_small_kl_bounded_steps(tmp_path):
+    """seqdex train on a residual variant starts from the residual hyperparameters (std 0.05, KL-adaptive rate,
+    whole-episode rollouts); with --demos it trains whole actions with the DAPG settings instead."""
+    import argparse
+    import math
+
+    from seqdex_drake.cli import task_config
+    from seqdex_drake.cli.train import DEMO_INIT_STD, _new_run
+    from seqdex_drake.rl.config import RESIDUAL_HYPERPARAMETERS
+
+    args = argparse.Namespace(seed=3, num_envs=None, test=False, demos=None, demo_coef=0.1, steps=None,
+                              checkpoint_seconds=None, preset="budget", task="tool_grasp", initial_states=None)
+    ppo_config, record = _new_run(args, tmp_path, task_config("tool_grasp", False, "budget"))
+    for key, value in RESIDUAL_HYPERPARAMETERS.items():
+        assert getattr(ppo_config, key) == value, key
+    assert ppo_config.init_log_std == math.log(0.1) and ppo_config.adaptive_lr and ppo_config.seed == 3
+    assert record["task_config"]["residual"] == "tool_grasp_script"
+    args.demos = "demos/tool_grasp.npz"
+    ppo_config, record = _new_run(args, tmp_path, task_config("tool_grasp", False, "budget", residual=False))
+    assert ppo_config.init_log_std == math.log(DEMO_INIT_STD) and not ppo_config.adaptive_lr
+    assert record["task_config"]["residual"] == ""

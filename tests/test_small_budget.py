@@ -47,7 +47,7 @@ def test_tool_grasp_budget_env_lifts_by_script_and_freezes_the_hand():
     and the hand's targets stay put from step 90 on."""
     config = budget_config("tool_grasp")
     assert config.phases == release_tool_grasp_phases() and config.reward.lift > 0
-    env = make_env("tool_grasp", dataclasses.replace(config, episode_length=95, residual=""))  # The phases alone.
+    env = make_env("tool_grasp", dataclasses.replace(config, episode_length=95, residual="", hand_actions=True))
     observation, _ = env.reset(seed=0)
     assert env.observation_space.shape == (160,) and observation[159] == 0.0  # The progress entry.
     rng = np.random.default_rng(0)
@@ -290,7 +290,7 @@ def test_collect_demos_script_keeps_a_scripted_tool_grasp(tmp_path):
                            "--episodes", "1", "--seed", "1", "--test", "--out", str(out)],
                           capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
-    demos = Demonstrations.load(out, expected_task="tool_grasp", expected_obs_dim=159)
+    demos = Demonstrations.load(out, expected_task="tool_grasp", expected_obs_dim=160)
     assert demos.num_episodes == 1 and len(demos) == 150 and demos.attempts == 1
     np.testing.assert_array_equal(demos.actions[60:90, 16:], np.tile([0.0, 0.0, 1.0], (30, 1)))
     refused = subprocess.run([sys.executable, str(ROOT / "scripts" / "collect_demos.py"), "--task", "search",

@@ -88,13 +88,14 @@ def check_creatable(path: str | os.PathLike, flag: str, directory: bool = False)
 def task_config(task: str, test: bool, preset: str = "paper", residual: bool = True):
     """The :class:`~seqdex_drake.tasks.base.TaskConfig` of a run: the task's default (``preset="budget"``: its
     small-budget variant where it has one), with episodes cut to :data:`TEST_EPISODE_LENGTH` steps under
-    ``--test``. ``residual=False`` drops the variant's residual base (``TaskConfig.residual``): a policy that
-    sends whole actions, as demonstrations hold them (``seqdex train --demos``, ``scripts/collect_demos.py``)."""
+    ``--test``. ``residual=False`` drops the variant's residual base (``TaskConfig.residual``) and gives the
+    policy the whole action space back: a policy that sends whole actions, as demonstrations hold them
+    (``seqdex train --demos``, ``scripts/collect_demos.py``)."""
     from seqdex_drake.tasks.registry import budget_config, default_config
 
     config = budget_config(task) if preset == "budget" else default_config(task)
-    if not residual:
-        config = dataclasses.replace(config, residual="")
+    if not residual and config.residual:
+        config = dataclasses.replace(config, residual="", hand_actions=True)
     if test:
         config = dataclasses.replace(config, episode_length=min(config.episode_length, TEST_EPISODE_LENGTH))
     return config

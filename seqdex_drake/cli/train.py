@@ -45,10 +45,6 @@ TEST_HIDDEN_SIZES = (64, 64)
 #: Initial action std of a run that starts from behaviour cloning (``--demos``): the cloned grasp is delicate, and
 #: the budget preset's 0.5 (a quarter of each hand joint's range) would rarely reproduce it.
 DEMO_INIT_STD = 0.2
-#: Initial action std of a residual policy (``TaskConfig.residual``): noise on top of the scripted base, whose
-#: fist grasp is delicate. On tool Grasp's script (seeds it succeeds on, 6 episodes each): std 0.05 keeps half of
-#: its successes, 0.1 none (the fingers' targets jitter by 5 % of their range every step).
-RESIDUAL_INIT_STD = 0.05
 #: Envs under ``--test`` without ``--num-envs``.
 TEST_NUM_ENVS = 2
 #: Rollout length under ``--test``: one update of ``num_envs * TEST_HORIZON`` steps, whatever the preset.
@@ -114,7 +110,7 @@ def _check_state_layout(env, buffer) -> None:
 
 def _new_run(args, run_dir: Path, config) -> tuple:
     """The PPO config and saved run record of a fresh run; refuses to overwrite an existing run."""
-    from seqdex_drake.rl.config import PPOConfig
+    from seqdex_drake.rl.config import RESIDUAL_HYPERPARAMETERS, PPOConfig
 
     if (run_dir / "last.pt").exists():
         raise CliError(f"{run_dir} already holds a run (last.pt); continue it with --resume or pick another "
@@ -124,8 +120,8 @@ def _new_run(args, run_dir: Path, config) -> tuple:
         overrides["num_envs"] = args.num_envs or TEST_NUM_ENVS
     if args.demos is not None:  # DAPG: the demonstration term, less exploration around the cloned policy.
         overrides.update(demo_coef=args.demo_coef, init_log_std=math.log(DEMO_INIT_STD))
-    elif config.residual:  # Explore around the scripted base, not over the whole action range.
-        overrides["init_log_std"] = math.log(RESIDUAL_INIT_STD)
+    elif config.residual and args.preset == "budget":  # Small, KL-bounded steps around the scripted base.
+        overrides.update(RESIDUAL_HYPERPARAMETERS)
     if args.test:
         overrides.update(actor_hidden_sizes=TEST_HIDDEN_SIZES, critic_hidden_sizes=TEST_HIDDEN_SIZES,
                          horizon=TEST_HORIZON)

@@ -3,11 +3,10 @@
 Action (19, in [-1, 1]): 16 Allegro joint targets scaled to the joint limits and EMA-smoothed, then the 3D
 wrist translation of the hand centre (``wrist_step`` m per step at 1), tracked by damped least-squares IK
 with the palm orientation held (as the release does). Observation: the paper's table for the sub-task
-(:mod:`seqdex_drake.systems.observations`). Time limits and simulator failures are truncations; task failure
+(:mod:`seqdex_drake.observation_layout`). Time limits and simulator failures are truncations; task failure
 (the object left the table) is a termination. ``info`` carries every reward term, ``success`` and flags.
 """
 
-import dataclasses
 import functools
 import math
 
@@ -17,50 +16,27 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, Demultiplexer
 
+from seqdex_drake.env_state import EnvState
 from seqdex_drake.envs.randomization import DomainRandomizer
-from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, ALLEGRO_Q_MAX, ALLEGRO_Q_MIN, p_PalmHc_Palm, p_PalmPc_Palm
-from seqdex_drake.robots.arm_ik import PalmIK
-from seqdex_drake.scenario import LoadScenario
-from seqdex_drake.scene.objects import SceneObjects
-from seqdex_drake.station import MakeControllerPlant, MakeStation, RefreshSampledOutputs
-from seqdex_drake.systems.observations import (
+from seqdex_drake.observation_layout import (
     ACTION_SIZE,
     FINGERTIPS,
     MOTOR_TACTILE,
     OBJECT_POSE,
     PALM_POSE,
-    ObservationAssembler,
-    ObservationTarget,
     floats,
     point_in_world,
 )
+from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, ALLEGRO_Q_MAX, ALLEGRO_Q_MIN, p_PalmHc_Palm, p_PalmPc_Palm
+from seqdex_drake.robots.arm_ik import PalmIK
+from seqdex_drake.scenario import LoadScenario
+from seqdex_drake.scene.objects import SceneObjects
+from seqdex_drake.station import MakeControllerPlant, MakeStation, RefreshSampledOutputs
+from seqdex_drake.systems.observations import ObservationAssembler, ObservationTarget
 from seqdex_drake.systems.target_pixels import TargetPixelCounter
 from seqdex_drake.tasks.base import Task, TaskConfig
 from seqdex_drake.tasks.phases import apply_phases
 from seqdex_drake.tasks.residual import apply_residual, make_base
-
-
-@dataclasses.dataclass
-class EnvState:
-    """A restorable environment state (what forward initialization hands to the next sub-task)."""
-
-    plant_positions: np.ndarray
-    plant_velocities: np.ndarray
-    objects: dict
-    target_object: str
-    goal: np.ndarray
-    arm_target: np.ndarray
-    hand_target: np.ndarray
-    previous_action: np.ndarray
-    task: str = ""
-    """The sub-task that saved the state (a different one means a hand-off)."""
-    arm_velocity_target: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(7))
-    """The arm's desired joint velocities (the wrist command's feed-forward; zero at rest)."""
-    time: float = 0.0
-    """Simulation time of the state (s). The control period (1/60 s) is not a multiple of the plant step (2 ms),
-    so which plant steps fall inside a control step depends on the time -- down to its rounding where a control
-    boundary meets a plant step --; restoring it makes the continuation exact (0 for states saved without it)."""
-
 
 COMMAND_SIZE = 14 + 32 + ACTION_SIZE
 """The env's per-step command source: arm desired state (14), hand desired state (32), previous action."""
@@ -367,7 +343,8 @@ class SubtaskEnv(gym.Env):
             a, hand_frozen = apply_phases(self._phases, self._steps, a, self._previous_action)
         if hand_frozen:
             pass  # The hand holds its targets; ``a`` carries the previous step's hand entries.
-        elif self.config.hand_actions:  # Joint targets scaled to the limits (allegro.scale_action_to_limits).
+        elif self.config.hand_actions or self._residual_base is not None:  # Joint targets scaled to the limits
+            # (allegro.scale_action_to_limits); with a residual base, the base's hand plus the policy's correction.
             target = [low + 0.5 * (x + 1.0) * r for x, low, r in zip(a[:16], _HAND_LOW, _HAND_RANGE, strict=True)]
             ema = self.config.ema
             self._hand_target = target if ema == 1.0 else [ema * t + (1 - ema) * h

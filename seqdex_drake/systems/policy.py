@@ -45,7 +45,7 @@ DEPLOYMENT_EMA = 0.2
 PAPER_HIDDEN_SIZES = (1024, 1024, 512)
 """Actor hidden sizes of the paper's PPO tables (used for untrained policies)."""
 _HAND_Q = slice(7, 23)
-"""Allegro joint positions in every observation layout (``systems/observations.py``, indices 7-22)."""
+"""Allegro joint positions in every observation layout (``observation_layout.py``, indices 7-22)."""
 
 
 @dataclasses.dataclass

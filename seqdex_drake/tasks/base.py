@@ -27,8 +27,9 @@ class TaskConfig:
     ema: float = 1.0
     """EMA factor of the hand joint targets: target = ema * new + (1 - ema) * previous (1 = no smoothing)."""
     hand_actions: bool = True
-    """False: the 16 hand entries of the action are ignored and the hand holds its targets (wrist-only tasks such
-    as the hand-over chain's)."""
+    """False: the policy's 16 hand entries are pinned to 0 (a wrist-only action space). Without a ``residual`` base
+    the hand then holds its targets (the hand-over chain's tasks); with one, the base's hand actions apply
+    uncorrected (the policy corrects the wrist only)."""
     wrist_floor: float = 0.0
     """Lowest world height (m) the wrist command may take the hand centre to (a workspace limit; 0: none)."""
     wrist_step: float = 0.005

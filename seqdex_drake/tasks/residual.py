@@ -5,7 +5,7 @@ does: the applied action is ``clip(base(observation, step) + policy action, -1, 
 layer starts near zero, only learns the correction. A sub-task opts in with ``TaskConfig.residual`` naming a
 base from :data:`RESIDUAL_BASES`; the env (:class:`~seqdex_drake.envs.subtask_env.SubtaskEnv`) adds the base to
 every action it is given, and a deployed policy system
-(:class:`~seqdex_drake.systems.policy.PolicySystem`, ``PolicyParams.residual``) adds it on its own tick count,
+(``PolicySystem`` in ``systems/policy.py``, ``PolicyParams.residual``) adds it on its own tick count,
 so training and the chain apply the same sum. The env's action space is then the correction: a gymnasium
 client or :func:`seqdex_drake.load_policy` deals in corrections, and the env turns them into robot actions.
 

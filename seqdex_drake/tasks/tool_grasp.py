@@ -10,13 +10,13 @@ release's scripted phases (the policy's wrist for 60 steps, a scripted lift over
 frozen), the episode's progress in the observation (160 entries: the phases are timed) and a lift term in the
 reward, so that what the policy must learn is the approach and the closing; and a residual policy
 (``tasks/residual.py``) on the scripted pickup of ``scene/tool_grasp_script.py`` (40 % success alone): the policy
-learns the correction that makes the script's grasp hold, starting from the script's success rather than from
-none.
+learns a wrist correction (3 dims; the hand's 16 are pinned to the script's) that makes the script's grasp hold,
+starting from the script's success rather than from none.
 """
 
 import dataclasses
 
-from seqdex_drake.systems.observations import OBJECT_QUATERNION
+from seqdex_drake.observation_layout import OBJECT_QUATERNION
 from seqdex_drake.tasks.base import Task, TaskConfig
 from seqdex_drake.tasks.phases import release_tool_grasp_phases
 from seqdex_drake.tasks.rewards import RewardWeights, grasp_reward, quaternion_angle
@@ -32,10 +32,12 @@ def default_config() -> TaskConfig:
 
 def budget_config() -> TaskConfig:
     """The small-budget variant: the release's scripted phases, the episode's progress in the observation (when
-    the lift comes), a lift term (weight 2) in the reward, and the policy a residual on the scripted pickup."""
+    the lift comes), a lift term (weight 2) in the reward, and the policy a residual on the scripted pickup that
+    corrects its wrist (the script's fingers apply as they are: noise on them breaks the fist grasp)."""
     config = default_config()
     return dataclasses.replace(config, phases=release_tool_grasp_phases(), observe_time=True,
-                               reward=dataclasses.replace(config.reward, lift=2.0), residual="tool_grasp_script")
+                               reward=dataclasses.replace(config.reward, lift=2.0), residual="tool_grasp_script",
+                               hand_actions=False)
 
 
 class ToolGraspTask(Task):
