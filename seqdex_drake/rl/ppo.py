@@ -28,14 +28,11 @@ fresh episodes (seeded by the config seed and the step count).
 
 import dataclasses
 import math
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 import torch
-from torch.utils.tensorboard import SummaryWriter
-from tqdm import tqdm
 
 from seqdex_drake.rl.buffer import RolloutBuffer
 from seqdex_drake.rl.checkpoint import capture_rng_state, load_checkpoint, restore_rng_state, save_checkpoint
@@ -323,66 +320,9 @@ class PPO:
         processes, which exit), ``last.pt`` holds the learner as the last update left it, without an env state (a
         resume starts fresh episodes).
         """
-        import signal
+        from seqdex_drake.rl.training_loop import run_training
 
-        from seqdex_drake.rl.stop_signals import StopSignals
-
-        total_steps = total_steps or self.config.total_steps
-        if self._saved_env_state is not None and vec_env is not self._env:
-            self._restore_env(vec_env, self._saved_env_state)
-        run_dir = Path(run_dir)
-        run_dir.mkdir(parents=True, exist_ok=True)
-        own_stop = stop is None
-        stop = StopSignals().__enter__() if own_stop else stop
-        writer = SummaryWriter(str(run_dir))
-        bar = tqdm(total=total_steps, initial=min(self.global_step, total_steps), unit="step", disable=not progress,
-                   dynamic_ncols=True)
-        start_time, start_step, metrics = time.perf_counter(), self.global_step, self.stats.window_metrics()
-        saved_at, abandoned = time.monotonic(), False
-        try:
-            while self.global_step < total_steps and stop.received is None:
-                step_before = self.global_step
-                before = {"rng": capture_rng_state({"policy": self.generator}), "stats": self.stats.state_dict(),
-                          "nonfinite_values": self.nonfinite_values}  # What collect() changes but the update needs.
-                try:
-                    rollout = self.collect(vec_env)
-                except Exception:
-                    if stop.received is None:
-                        raise
-                    self._env = None  # The rollout is abandoned: no env state to save; the next collect resets.
-                    state = {**self.state_dict(), **before}
-                    state["counters"]["num_episodes"] = before["stats"]["num_episodes"]
-                    save_checkpoint(run_dir / "last.pt", state)
-                    abandoned = True
-                    break
-                metrics = {**rollout, **self.update(), **self.stats.window_metrics()}
-                metrics["charts/SPS"] = (self.global_step - start_step) / max(time.perf_counter() - start_time, 1e-9)
-                for key, value in metrics.items():
-                    writer.add_scalar(key, value, self.global_step)
-                bar.update(min(self.global_step, total_steps) - min(step_before, total_steps))
-                bar.set_postfix({"SPS": f"{metrics['charts/SPS']:.0f}", **{
-                    name: f"{metrics[key]:.2f}" for name, key in (("success", "charts/success_rate"),
-                                                                 ("ret", "charts/episode_return")) if key in metrics}})
-                selection = self.stats.selection_metric()
-                if selection is not None and selection[1] > self.best["value"]:
-                    self.best = {"metric": selection[0], "value": selection[1]}
-                    self.save(run_dir / "best.pt")
-                if (self.num_updates % self.config.checkpoint_every == 0
-                        or time.monotonic() - saved_at >= self.config.checkpoint_seconds):
-                    self.save(run_dir / "last.pt")
-                    saved_at = time.monotonic()
-                if any(callback(self, metrics) is False for callback in callbacks):
-                    break
-            if not abandoned:
-                self.save(run_dir / "last.pt")
-        finally:
-            writer.close()
-            bar.close()
-            if own_stop:
-                stop.__exit__(None, None, None)
-        if own_stop and stop.signum is not None:  # last.pt is saved: now the previous handler's turn.
-            signal.raise_signal(stop.signum)
-        return metrics
+        return run_training(self, vec_env, run_dir, total_steps, callbacks, progress, stop)
 
     # ------------------------------------------------------------------------------------- checkpoints
     def _env_state(self) -> dict | None:
