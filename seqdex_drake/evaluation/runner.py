@@ -43,6 +43,9 @@ BLOCK_TOLERANCE = (0.02, 0.2)
 TOOL_TOLERANCE = 0.5
 #: Where a tool's goal is: lifted this far above its start, held in hand.
 TOOL_GOAL_LIFT = 0.15
+#: A tool counts as held (the paper: "lifted and held in hand") while its origin is at least this far above its
+#: start height: half the goal's lift, so a tool lying on the table (or dropped onto it) never succeeds.
+TOOL_HELD_LIFT = TOOL_GOAL_LIFT / 2
 
 
 class ChainRunError(ValueError):
@@ -281,7 +284,8 @@ class ChainRunner:
         position, rotation = self.errors()
         if self.config.family == "building_blocks":
             return position < BLOCK_TOLERANCE[0] and rotation < BLOCK_TOLERANCE[1]
-        return rotation < TOOL_TOLERANCE
+        held = self.object_pose().translation()[2] > self.goal[2] - TOOL_GOAL_LIFT + TOOL_HELD_LIFT
+        return rotation < TOOL_TOLERANCE and held
 
     def chain_output(self, name: str) -> np.ndarray:
         return self.controller.GetOutputPort(name).Eval(self.controller.GetMyContextFromRoot(self.context))

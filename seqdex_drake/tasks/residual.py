@@ -36,9 +36,16 @@ def _tool_grasp_script() -> BaseController:
     return ScriptedToolGrasp()
 
 
+def _tool_reorient_gait() -> BaseController:
+    from seqdex_drake.scene.tool_reorient_gait import FingerGait
+
+    return FingerGait()
+
+
 #: Name -> factory of the scripted bases a ``TaskConfig.residual`` may name.
 RESIDUAL_BASES: dict[str, Callable[[], BaseController]] = {
     "tool_grasp_script": _tool_grasp_script,  # The scripted hammer pickup (scene/tool_grasp_script.py).
+    "tool_reorient_gait": _tool_reorient_gait,  # A searched open-loop finger gait (scene/tool_reorient_gait.py).
 }
 
 

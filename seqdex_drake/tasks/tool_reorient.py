@@ -8,7 +8,11 @@ targets are then the fist: hand actions are absolute targets, so a policy keeps 
 :func:`~seqdex_drake.tasks.handoff.hold_action`, while the zero action opens the hand to mid-range. Goal: the
 start pose flipped 180 deg about the tool's long axis y (FACTS.md), at the same place. Observation: base +
 goal (173).
-Reward: the paper's In-hand Orientation formula. Success: orientation error below 0.5 rad (FACTS.md).
+Reward: the paper's In-hand Orientation formula. Success: orientation error below 0.5 rad (FACTS.md) with the
+tool still held, its origin within ``HELD_DISTANCE`` of the goal's (the paper: "lifted and held in hand in a
+ready-to-use pose"); a tool farther than that has left the hand (dropped or thrown): task failure, the episode
+terminates. The hand-off lifts the tool more than 0.1 m off the table, so a dropped tool fails this test before it
+lands; a 180 deg roll about the handle moves the origin by about 2 cm (it sits 1.2 cm off the handle's axis).
 """
 
 
@@ -19,6 +23,9 @@ from seqdex_drake.tasks.base import Task, TaskConfig
 from seqdex_drake.tasks.handoff import synthesized_tool_grasp
 from seqdex_drake.tasks.rewards import RewardWeights, goal_errors, goal_reward
 from seqdex_drake.tasks.tools_common import tool_name
+
+#: How far (m) the tool's origin may be from the goal's (its hand-off position) while held.
+HELD_DISTANCE = 0.1
 
 
 def default_config() -> TaskConfig:
@@ -56,4 +63,10 @@ class ToolReorientTask(Task):
                            env.hand_torque())
 
     def is_success(self, env) -> bool:
-        return goal_errors(env.observation_values())[1] < self.config.success_threshold[0]
+        position, rotation = goal_errors(env.observation_values())
+        return rotation < self.config.success_threshold[0] and position < HELD_DISTANCE
+
+    def is_failure(self, env) -> bool:
+        """The tool left the hand: its origin is more than ``HELD_DISTANCE`` from the goal's, or below the
+        config's drop height."""
+        return goal_errors(env.observation_values())[0] > HELD_DISTANCE or super().is_failure(env)
