@@ -17,13 +17,18 @@ The default task is Reach (the hand-over chain's first stage, wrist only, 30-ste
 thousands of steps, where tool Grasp's success stays at 0 for both presets (results/tool_positioning.md), so the
 comparison has a signal on our budget. Per preset: ``success_mean`` / ``success_std`` over seeds; at the top level
 ``budget_minus_paper_success`` (the per-sample difference), its standard error over seeds, and
-``budget_over_paper_wall_clock`` (training seconds, same steps). The last line printed is one JSON object.
+``budget_over_paper_wall_clock`` (training seconds, same steps). The last line printed is one JSON object. With
+``--out F.json`` the object is also written there, with the curves as ``F.csv`` (one row per preset, seed and update)
+and ``F.png`` (training success against env steps and wall-clock, one line per run); ``--plot-only`` redraws
+those two from an existing ``F.json`` without training.
 
     python benchmarks/learning_per_sample.py [--task reach] [--presets-of tool_grasp] [--steps 40960]
         [--seeds 0 1 2] [--episodes 50] [--out results/learning_per_sample.json] [--test]
+    python benchmarks/learning_per_sample.py --plot-only --out results/learning_per_sample.json
 """
 
 import argparse
+import csv
 import dataclasses
 import json
 import math
@@ -87,6 +92,44 @@ def train_and_evaluate(task: str, preset: str, presets_of: str, seed: int, steps
             "success": evaluation["success_rate"], "mean_return": evaluation["mean_return"], "curve": curve}
 
 
+def write_curves(result: dict, out: Path) -> tuple[Path, Path]:
+    """``out.csv`` and ``out.png`` from a result object (see the module docstring)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot
+
+    presets = [key for key in PRESETS if key in result]
+    csv_path, png_path = out.with_suffix(".csv"), out.with_suffix(".png")
+    with csv_path.open("w", newline="") as file:
+        writer = csv.writer(file)
+        writer.writerow(["preset", "seed", "env_steps", "wall_clock_s", "success_rate", "episode_return"])
+        for preset in presets:
+            for run in result[preset]["runs"]:
+                for row in run["curve"]:
+                    writer.writerow([preset, run["seed"], int(row[0]), *(f"{value:.6g}" for value in row[1:])])
+    figure, axes = pyplot.subplots(1, 2, figsize=(10, 4), sharey=True)
+    colors = {"budget": "tab:green", "paper": "tab:purple"}
+    for preset in presets:
+        for k, run in enumerate(result[preset]["runs"]):
+            curve = np.asarray(run["curve"], dtype=float).reshape(-1, 4)
+            label = f"{preset} (eval {result[preset]['success_mean']:.2f})" if k == 0 else None
+            axes[0].plot(curve[:, 0], curve[:, 2], color=colors[preset], alpha=0.8, label=label)
+            axes[1].plot(curve[:, 1], curve[:, 2], color=colors[preset], alpha=0.8)
+    axes[0].set_xlabel("env steps")
+    axes[1].set_xlabel("wall-clock (s), 2 cores")
+    axes[0].set_ylabel("training success (last 100 episodes)")
+    axes[0].legend()
+    for axis in axes:
+        axis.grid(alpha=0.3)
+    figure.suptitle(f"{result['task']}: {result['presets_of']}'s budget and paper PPO presets, "
+                    f"seeds {', '.join(map(str, result['seeds']))}")
+    figure.tight_layout()
+    figure.savefig(png_path, dpi=100)
+    pyplot.close(figure)
+    return csv_path, png_path
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--task", default="reach", help="the env both presets train on")
@@ -97,7 +140,18 @@ def main() -> None:
     parser.add_argument("--presets", default="budget,paper")
     parser.add_argument("--out", help="also write the JSON object here")
     parser.add_argument("--test", action="store_true", help="a few steps only (CI): 2 envs, 4-step rollouts")
+    parser.add_argument("--plot-only", action="store_true", help="redraw the curves of --out's JSON; no training")
     args = parser.parse_args()
+    if args.plot_only:
+        if not args.out:
+            parser.error("--plot-only needs --out, the JSON file of an earlier run")
+        try:
+            result = json.loads(Path(args.out).read_text())
+        except (OSError, ValueError) as error:
+            parser.error(f"--out {args.out}: not a result of this script ({error})")
+        for path in write_curves(result, Path(args.out)):
+            print(f"wrote {path}")
+        return
     presets = args.presets.split(",")
     unknown = sorted(set(presets) - set(PRESETS))
     if unknown:
@@ -130,6 +184,7 @@ def main() -> None:
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(line + "\n")
+        write_curves(result, Path(args.out))
     print(line)
 
 

@@ -68,3 +68,19 @@ def test_env_instructions_splits_the_step_into_physics_and_env_code():
     # The simulated caches: every last-level (L2-sized) miss is an L1 miss first; some of them are code.
     assert 0 < counts["outside_l2_instruction_misses"] < counts["outside_l2_misses"] <= counts["outside_l1_misses"]
     assert counts["outside_cycles_estimate"] > counts["outside"]
+
+
+def test_learning_per_sample_trains_both_presets_on_the_same_episodes(tmp_path):
+    out = tmp_path / "lps.json"
+    result = _run("learning_per_sample.py", "--out", str(out))
+    assert result["task"] == "reach" and result["presets_of"] == "tool_grasp"
+    budget, paper = result["budget"]["runs"][0], result["paper"]["runs"][0]
+    assert budget["env_steps"] >= result["steps"] and paper["env_steps"] >= result["steps"]
+    assert budget["model_parameters"] < paper["model_parameters"]  # [256, 256, 128] against [1024, 1024, 512]
+    assert 0.0 <= budget["success"] <= 1.0 and len(budget["curve"]) == budget["updates"]
+    assert result["budget_minus_paper_success"] == budget["success"] - paper["success"]
+    assert result["budget_over_paper_wall_clock"] > 0
+    assert json.loads(out.read_text()) == result
+    rows = (tmp_path / "lps.csv").read_text().splitlines()
+    assert rows[0].startswith("preset,seed,env_steps") and len(rows) == 1 + budget["updates"] + paper["updates"]
+    assert (tmp_path / "lps.png").stat().st_size > 0
