@@ -5,8 +5,9 @@ successful hand-off states from ``--buffer``, or standalone resets with seeds 0.
 the tool's orientation error to the goal (rad), averaged over the episode's last ``TAIL`` steps and over the starts,
 with a dropped tool (the episode terminated) scored ``-(pi + 1)``. Each iteration samples ``--population``
 Gaussian candidates around the mean, keeps the ``--elites`` best, and moves the mean and std toward them. The best
-candidate seen is written to ``--out`` (default: the file the gait module reads) after every iteration with the
-command, its score, its success count and the env steps spent; ``--resume`` continues a search from that file.
+candidate seen is written to ``--out`` (default: the file the gait module reads) after every iteration with its
+score, its success count, the env steps spent and the runs that made it (command, commit, iterations); ``--resume``
+continues a search from that file.
 
     python scripts/search_reorient_gait.py --buffer B.npz [--iterations 12] [--population 32] [--elites 6]
         [--starts 4] [--seed 0] [--workers 2] [--out FILE] [--resume]
@@ -71,10 +72,10 @@ def episode_score(env, gait, starts, k: int) -> tuple[float, bool]:
     """Plays ``gait`` from start ``k``: (score, success at the end)."""
     from seqdex_drake.tasks.rewards import goal_errors
 
-    _reset(env, starts, k)
+    observation, _ = _reset(env, starts, k)
     errors, info = [], {}
     for step in range(env.config.episode_length):
-        _, _, terminated, truncated, info = env.step(gait.act(None, step))
+        observation, _, terminated, truncated, info = env.step(gait.act(observation, step))
         if terminated:
             return DROPPED, False
         errors.append(goal_errors(env.observation_values())[1])
@@ -141,7 +142,8 @@ def main() -> None:
         try:
             record = json.loads(out.read_text())
             mean, std = np.asarray(record["search"]["mean"]), np.asarray(record["search"]["std"])
-            done, steps, best = record["search"]["iterations"], record["env_steps"], record
+            done, steps, runs = record["search"]["iterations"], record["env_steps"], record.get("runs", [])
+            best = {key: record[key] for key in ("gait", "score", "successes", "starts")}
             rng = np.random.default_rng([args.seed, done])
         except (OSError, ValueError, KeyError) as error:
             parser.error(f"--resume: {out} holds no search to continue ({error})")
@@ -149,7 +151,7 @@ def main() -> None:
         center = _hold_center(args.buffer, args.starts)
         mean = np.r_[center, np.zeros(16), np.zeros(16), 40.0]
         std = np.r_[np.full(16, 0.15), np.full(16, 0.3), np.full(16, np.pi), 20.0]
-        done, steps, best = 0, 0, None
+        done, steps, best, runs = 0, 0, None, []
     floor = np.r_[np.full(16, 0.02), np.full(16, 0.02), np.full(16, 0.1), 2.0]
     episode_length = default_config(TASK).episode_length
     context = multiprocessing.get_context("spawn")
@@ -171,11 +173,13 @@ def main() -> None:
             if best is None or scores[top] > best["score"]:
                 best = {"gait": GaitParameters.from_vector(candidates[top]).to_dict(), "score": float(scores[top]),
                         "successes": int(successes[top]), "starts": args.starts}
-            record = {**best, "command": " ".join(["python", "scripts/search_reorient_gait.py", *sys.argv[1:]]),
-                      "buffer": args.buffer, "commit": _commit(), "date": datetime.date.today().isoformat(),
-                      "env_steps": steps,
+            run = {"command": " ".join(["python", "scripts/search_reorient_gait.py", *sys.argv[1:]]),
+                   "commit": _commit(), "date": datetime.date.today().isoformat(),
+                   "iterations": [done + 1, iteration + 1]}
+            record = {**best, "buffer": args.buffer, "env_steps": steps, "runs": [*runs, run],
                       "search": {"iterations": iteration + 1, "mean": mean.tolist(), "std": std.tolist()}}
-            atomic_write(out, json.dumps(record, indent=1) + "\n")
+            text = json.dumps(record, indent=1) + "\n"
+            atomic_write(out, lambda file, text=text: file.write(text.encode()))
             print(f"iteration {iteration + 1}: best {scores[top]:+.3f} ({successes[top]}/{args.starts} succeed), "
                   f"elite mean {scores[elite].mean():+.3f}, all-time {best['score']:+.3f}, "
                   f"{time.perf_counter() - start:.0f} s, {steps} env steps", flush=True)

@@ -47,6 +47,8 @@ OBJECT_POSE = slice(111, 118)
 """The object's pose [x, y, z, qw, qx, qy, qz]."""
 OBJECT_QUATERNION = slice(114, 118)
 """The object's orientation [qw, qx, qy, qz], qw >= 0."""
+PREVIOUS_ACTION = slice(124, 143)
+"""The action applied at the previous step (16 hand entries, then 3 wrist)."""
 MOTOR_TACTILE = slice(143, 159)
 """The torques the 16 Allegro motors exert."""
 GOAL_POSITION_ERROR = slice(166, 169)

@@ -159,3 +159,24 @@ def test_train_with_initial_states(tmp_path, capsys):
     assert main(["train", "--task", "search", "--test", "--run-dir", str(tmp_path / "s"), "--initial-states",
                  buffer]) == 2
     assert "first sub-task" in capsys.readouterr().err
+
+
+def test_rollout_from_a_hand_off_buffer(tmp_path, capsys):
+    buffer, out = str(tmp_path / "tool.npz"), tmp_path / "rollout.json"
+    state = _tool_grasp_buffer(buffer)
+    assert main(["rollout", "--task", "tool_reorient", "--zero-action", "--test", "--episodes", "2",
+                 "--initial-states", buffer, "--out", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert result["initial_states"] == buffer and len(result["per_episode"]) == 2
+    # The episodes start from the buffer's hand-off (not from the standalone fist grasp) ...
+    from seqdex_drake.cli.rollout import run_episode
+    from seqdex_drake.tasks.registry import make_env
+
+    env = make_env("tool_reorient", task_config("tool_reorient", True, "budget"))
+    starts = []
+    run_episode(env, lambda observation: starts.append(env.object_pose().translation()) or np.zeros(19), 0, state)
+    assert abs(starts[0][2] - 0.6) < 0.1  # The hand-off's tool lies on the table; the fist grasp holds it at 1.1 m.
+    # ... and a buffer of another hand-off is refused before any rollout.
+    capsys.readouterr()
+    assert main(["rollout", "--task", "insert", "--zero-action", "--test", "--initial-states", buffer]) == 2
+    assert "target task 'tool_reorient'" in capsys.readouterr().err

@@ -6,7 +6,10 @@
 Episode ``i`` starts from ``env.reset(seed=seed + i)`` (the task's own initial-state distribution) and runs the
 policy's mean action (:func:`~seqdex_drake.rl.policy_loading.load_policy`) in one in-process
 :class:`~seqdex_drake.envs.subtask_env.SubtaskEnv` until it terminates or truncates; it succeeded if ``success``
-holds at its last step. The env is the task variant the policy was trained on (``--preset``, by default the one
+holds at its last step. With ``--initial-states B`` (a terminal buffer of the previous sub-task, ``seqdex
+collect``) episode ``i`` starts instead from B's successful hand-off number ``(seed + i) mod N`` (N of them), as
+forward initialization starts the sub-task: ``--seed 0 --episodes N`` plays each hand-off once.
+The env is the task variant the policy was trained on (``--preset``, by default the one
 recorded in the run's ``config.json`` beside the checkpoint). Prints the success rate and the mean return;
 ``--out`` also writes them with every episode's seed, return, length and outcome as JSON (the path is checked to
 be writable before any rollout).
@@ -52,6 +55,9 @@ def add_parser(commands) -> None:
     parser.add_argument("--zero-action", action="store_true",
                         help="roll out the zero action instead of a checkpoint: a reference, and for a task variant "
                              "with a residual base (TaskConfig.residual) its script alone (default preset: budget)")
+    parser.add_argument("--initial-states", metavar="BUFFER",
+                        help="start episode i from this terminal buffer's successful hand-off (seed + i) mod N "
+                             "(seqdex collect --task <previous sub-task>), as forward initialization does")
     parser.add_argument("--out", help="also write the results to this JSON file")
     parser.add_argument("--test", action="store_true", help="a tiny budget for smoke tests and CI")
 
@@ -76,9 +82,11 @@ def run_residual(checkpoint: Path) -> bool:
         return True
 
 
-def run_episode(env, policy, seed: int) -> dict:
-    """One episode from ``env.reset(seed=seed)`` with ``policy``: its seed, return, length and outcome."""
-    observation, info = env.reset(seed=seed)
+def run_episode(env, policy, seed: int, initial_state=None) -> dict:
+    """One episode from ``env.reset(seed=seed)`` (from ``initial_state`` if given) with ``policy``: its seed,
+    return, length and outcome."""
+    options = None if initial_state is None else {"initial_state": initial_state}
+    observation, info = env.reset(seed=seed, options=options)
     episode_return, length = 0.0, 0
     while True:
         observation, reward, terminated, truncated, info = env.step(policy(observation))
@@ -124,6 +132,17 @@ def _check(args, checkpoint: Path, policy, env) -> None:
                        f"has {env.action_space.shape[0]}")
 
 
+def _hand_offs(args) -> list | None:
+    """The successful hand-off states of ``--initial-states`` (as ``EnvState``), or None without it."""
+    if args.initial_states is None:
+        return None
+    from seqdex_drake.cli.train import load_initial_states
+    from seqdex_drake.env_state import EnvState
+
+    buffer = load_initial_states(args.initial_states, args.task)
+    return [buffer.state(i, EnvState) for i in range(len(buffer)) if buffer.successes[i]]
+
+
 def run(args) -> int:
     """Runs ``seqdex rollout`` with the parsed ``args``; returns the exit code."""
     from tqdm import tqdm
@@ -140,6 +159,7 @@ def run(args) -> int:
     out = Path(args.out) if args.out else None
     if out is not None:
         check_creatable(out, "--out")  # Before the rollouts, not after them.
+    starts = _hand_offs(args)
     if args.zero_action:  # No policy: the zero action (a residual variant's script alone).
         if args.checkpoint or args.run_dir:
             raise CliError("--zero-action rolls out no policy; drop --checkpoint / --run-dir")
@@ -155,7 +175,8 @@ def run(args) -> int:
         policy = _load(args, checkpoint)
         env = make_env(args.task, config)
         _check(args, checkpoint, policy, env)
-    records = [run_episode(env, policy, args.seed + episode)
+    records = [run_episode(env, policy, args.seed + episode,
+                           None if starts is None else starts[(args.seed + episode) % len(starts)])
                for episode in tqdm(range(episodes), desc=f"rollout {args.task}", unit="episode",
                                    disable=not sys.stderr.isatty())]
     summary = summarize(records)
@@ -165,7 +186,8 @@ def run(args) -> int:
           f"{preset} task variant")
     if out is not None:
         result = {"task": args.task, "checkpoint": os.fspath(checkpoint), "episodes": episodes, "seed": args.seed,
-                  "preset": preset, "test": bool(args.test), "episode_length": config.episode_length,
+                  "preset": preset, "initial_states": args.initial_states, "test": bool(args.test),
+                  "episode_length": config.episode_length,
                   "deterministic": True, **summary, "per_episode": records}
         atomic_write(out, lambda file: file.write((json.dumps(result, indent=2) + "\n").encode()))
         print(f"seqdex rollout: wrote {out}")

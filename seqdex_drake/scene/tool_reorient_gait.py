@@ -8,8 +8,10 @@ tool Grasp. Each hand joint follows
     action_j(step) = clip(center_j + amplitude_j * sin(2 pi step / period + phase_j), -1, 1)
 
 in the env's hand-action units (absolute targets scaled to the joint limits), and the wrist holds still (its three
-action entries 0). The gait depends on the step only, so it is a valid residual base (Markov in observation and
-step). Its 49 numbers (:class:`GaitParameters`) are not designed by hand: ``scripts/search_reorient_gait.py``
+action entries 0). Once the tool is within ``HOLD_BELOW`` of its goal orientation (the observation's goal error), the
+gait stops: the hand repeats the previous step's hand action (the observation holds it), keeping its targets, until
+the error grows again. The action depends on the observation and the step only, so it is a valid residual base
+(Markov in both). Its 49 numbers (:class:`GaitParameters`) are not designed by hand: ``scripts/search_reorient_gait.py``
 finds them by a cross-entropy search over episodes of the tool Reorient env itself, from tool Grasp's hand-off
 states, and writes :data:`GAIT_FILE`, which this module reads.
 """
@@ -23,11 +25,15 @@ from pathlib import Path
 
 import numpy as np
 
+from seqdex_drake.observation_layout import GOAL_ROTATION_ERROR, PREVIOUS_ACTION
+
 #: The searched gait (written by scripts/search_reorient_gait.py; its header records the command and score).
 GAIT_FILE = Path(__file__).with_name("tool_reorient_gait.json")
 HAND_JOINTS = 16
 #: Bounds of the period (policy steps): a cycle between 1/6 s and 2 s at 60 Hz.
 PERIOD_RANGE = (10.0, 120.0)
+#: Goal orientation error (rad) below which the gait stops and the hand holds (tool Reorient succeeds below 0.5).
+HOLD_BELOW = 0.35
 
 
 @dataclasses.dataclass(frozen=True)
@@ -89,7 +95,8 @@ def load_gait(path: str | Path = GAIT_FILE) -> GaitParameters:
 
 
 class FingerGait:
-    """The gait as a controller: ``act(observation, step)`` -> the 19-dim action (hand gait, wrist still)."""
+    """The gait as a controller: ``act(observation, step)`` -> the 19-dim action (hand gait, wrist still; the
+    hand holds once the tool is within :data:`HOLD_BELOW` of its goal). ``observation=None``: the gait alone."""
 
     def __init__(self, parameters: GaitParameters | None = None):
         self.parameters = parameters if parameters is not None else load_gait()
@@ -98,5 +105,13 @@ class FingerGait:
         self._phase, self._omega = np.asarray(p.phase), 2.0 * np.pi / p.period
 
     def act(self, observation, step: int) -> np.ndarray:
+        if observation is not None and _goal_angle(observation) < HOLD_BELOW:
+            return np.r_[np.asarray(observation[PREVIOUS_ACTION][:HAND_JOINTS], dtype=float), 0.0, 0.0, 0.0]
         hand = np.clip(self._center + self._amplitude * np.sin(self._omega * step + self._phase), -1.0, 1.0)
         return np.r_[hand, 0.0, 0.0, 0.0]
+
+
+def _goal_angle(observation) -> float:
+    """The goal orientation error (rad) in a tool Reorient observation: 2 asin |vec(q_goal conj(q_tool))|."""
+    w, x, y, z = (float(v) for v in observation[GOAL_ROTATION_ERROR])
+    return 2.0 * math.asin(min(math.sqrt(x * x + y * y + z * z), 1.0))

@@ -13,8 +13,13 @@ tool still held, its origin within ``HELD_DISTANCE`` of the goal's (the paper: "
 ready-to-use pose"); a tool farther than that has left the hand (dropped or thrown): task failure, the episode
 terminates. The hand-off lifts the tool more than 0.1 m off the table, so a dropped tool fails this test before it
 lands; a 180 deg roll about the handle moves the origin by about 2 cm (it sits 1.2 cm off the handle's axis).
+
+:func:`budget_config` is the variant that fits a small training budget (``../shared/TRAINING.md``): a residual
+policy (``tasks/residual.py``) on the searched finger gait of ``scene/tool_reorient_gait.py``, which rolls the held
+hammer about its handle, with the episode's progress in the observation (the gait is timed; 174 entries).
 """
 
+import dataclasses
 
 from pydrake.math import RigidTransform, RotationMatrix
 
@@ -34,6 +39,12 @@ def default_config() -> TaskConfig:
         object_types=[0], reward=RewardWeights(progress=1.0, fingertip=0.0, action=-0.001, torque=-0.003,
                                                alpha0=20.0, alpha1=1.0, e0=0.06),
         success_threshold=[0.5])  # [orientation error (rad)]
+
+
+def budget_config() -> TaskConfig:
+    """The small-budget variant: a residual on the searched finger gait, correcting hand and wrist, with the
+    episode's progress observed."""
+    return dataclasses.replace(default_config(), residual="tool_reorient_gait", observe_time=True)
 
 
 class ToolReorientTask(Task):
