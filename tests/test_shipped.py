@@ -30,8 +30,8 @@ def _checkpoint(path: Path, task: str, obs_dim: int) -> Path:
 
 @pytest.fixture
 def shipped(tmp_path) -> Path:
-    # tool_grasp's budget variant observes its progress: one more input than the paper's layout.
-    stages = [StageRecord(task, _checkpoint(tmp_path / f"{task}.pt", task, SIZES[task] + (task == "tool_grasp")),
+    # Both budget variants observe their progress: one more input than the paper's layout.
+    stages = [StageRecord(task, _checkpoint(tmp_path / f"{task}.pt", task, SIZES[task] + 1),
                           "budget", 3600.0, 2) for task in TASKS]
     folder = tmp_path / "checkpoints" / "tool_positioning"
     ship_chain(folder, "tool_positioning", stages, commit="abc123")
@@ -90,7 +90,10 @@ def test_the_chain_runner_deploys_shipped_policies_with_their_phases(shipped):
     assert runner.untrained == [] and runner.shipped is not None
     assert runner.policies[0].params.phases == release_tool_grasp_phases()
     assert runner.policies[1].params.phases is None
-    assert (runner.policies[0].params.time_steps, runner.policies[1].params.time_steps) == (150, 0)
+    # Both budget variants observe their progress and are residuals on their scripted bases.
+    assert (runner.policies[0].params.time_steps, runner.policies[1].params.time_steps) == (150, 125)
+    assert (runner.policies[0].params.residual, runner.policies[1].params.residual) == ("tool_grasp_script",
+                                                                                       "tool_reorient_gait")
 
 
 def test_simulate_chain_runs_shipped_checkpoints_and_refuses_broken_ones(shipped):
