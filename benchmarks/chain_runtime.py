@@ -4,7 +4,9 @@ Part 1 (tick): 4 paper-size policies (actor MLPs [1024, 1024, 512], untrained we
 Grasp 159, Insert 173 inputs) all computing, plus the switcher with F^2..F^4 (the attention model, H = 10,
 default width) on constant observations, stepped by a Drake Simulator; the wall time per tick is ``tick_ms``.
 The chain itself runs only the executing stage's policy per tick (the others' ``active`` input is 0 and they
-skip inference): ``tick_ms_chain`` times switcher + the same 4 policy systems with one computing.
+skip inference): ``tick_ms_chain`` times switcher + the same 4 policy systems with one computing, and
+``tick_ms_shipped`` the same with the shipped tool-positioning networks (``--shipped``: its policies with their
+progress inputs and scripted bases, its F; null when nothing is shipped).
 ``policy_ms`` / ``feasibility_ms`` are single forward passes of the default numpy inference path
 (``systems/inference.py``) repeated back to back (weights cache-resident), ``*_torch_ms`` the same through torch;
 ``tick_ms_torch`` is the 4-policy tick with ``inference="torch"``.
@@ -35,6 +37,7 @@ import argparse
 import json
 import os
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -62,6 +65,8 @@ from seqdex_drake.systems.switcher import FeasibilitySwitcher, SwitcherParams
 from seqdex_drake.tasks.blocks_common import resting_pose
 
 PERIOD = 1.0 / 60.0
+#: The shipped tool-positioning chain (``seqdex ship``).
+SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints" / "tool_positioning"
 SIZES = {"search": 160, "orient": 159, "grasp": 159, "insert": 173}
 
 
@@ -80,16 +85,44 @@ def time_tick(ticks: int, computing: int, seed: int = 0, inference: str = "numpy
     tasks = list(SIZES)
     sizes = [SIZES[t] for t in tasks]
     feasibility = [None] + [untrained_f(tasks[i - 1], tasks[i], sizes[i - 1]) for i in range(1, len(tasks))]
+    policies = [PolicySystem.untrained(size, seed=i, params=PolicyParams(PERIOD, inference=inference))
+                for i, size in enumerate(sizes)]
+    return _time_systems(feasibility, sizes, policies, computing, ticks, SwitcherParams(inference=inference), seed)
+
+
+def time_shipped_tick(folder: str, family: str, ticks: int) -> tuple[float, float]:
+    """:func:`time_tick` with a shipped chain's networks (``checkpoints/<family>``): its policies (each with its
+    stage's progress input and scripted base) and F's, the first stage computing, as the chain runs it."""
+    from seqdex_drake.chaining.chain import LoadChain
+    from seqdex_drake.chaining.feasibility_io import load_feasibility
+    from seqdex_drake.chaining.shipped import load_shipped_chain
+    from seqdex_drake.evaluation.runner import observation_sizes
+
+    tasks = list(LoadChain(family).stages)
+    chain = load_shipped_chain(folder, family, tasks, observation_sizes())
+    sizes = [observation_sizes()[task] for task in tasks]
+    time_steps = tuple(c.episode_length if c.observe_time else 0 for c in chain.configs)
+    params = [PolicyParams(PERIOD, time_steps=t, residual=c.residual, phases=c.phases)
+              for t, c in zip(time_steps, chain.configs, strict=True)]
+    policies = [PolicySystem.untrained(size, seed=i, params=p) if path is None else
+                PolicySystem.from_checkpoint(path, size, p)
+                for i, (path, size, p) in enumerate(zip(chain.policies, sizes, params, strict=True))]
+    feasibility = [None if path is None else load_feasibility(path) for path in chain.feasibility]
+    return _time_systems(feasibility, sizes, policies, 1, ticks, SwitcherParams(time_steps=time_steps))
+
+
+def _time_systems(feasibility: list, sizes: list[int], policies: list, computing: int, ticks: int,
+                  switcher_params: SwitcherParams, seed: int = 0) -> tuple[float, float]:
     builder = DiagramBuilder()
     rng = np.random.default_rng(seed)
     sources = [builder.AddSystem(ConstantVectorSource(rng.normal(size=size))) for size in sizes]
-    switcher = builder.AddSystem(FeasibilitySwitcher(feasibility, sizes, [10**6] * 4, PERIOD,
-                                                     SwitcherParams(inference=inference)))
-    for i in range(1, len(tasks)):
-        builder.Connect(sources[i - 1].get_output_port(), switcher.GetInputPort(f"observation.{i - 1}"))
-    for i in range(len(tasks)):
-        params = PolicyParams(PERIOD, inference=inference)
-        policy = builder.AddSystem(PolicySystem.untrained(sizes[i], seed=i, params=params))
+    budgets = [10**6] * len(sizes)
+    switcher = builder.AddSystem(FeasibilitySwitcher(feasibility, sizes, budgets, PERIOD, switcher_params))
+    for i in range(1, len(sizes)):
+        if feasibility[i] is not None:
+            builder.Connect(sources[i - 1].get_output_port(), switcher.GetInputPort(f"observation.{i - 1}"))
+    for i, policy in enumerate(policies):
+        policy = builder.AddSystem(policy)
         builder.Connect(sources[i].get_output_port(), policy.GetInputPort("observation"))
         active = builder.AddSystem(ConstantVectorSource([1.0 if i < computing else 0.0]))
         builder.Connect(active.get_output_port(), policy.GetInputPort("active"))
@@ -167,6 +200,9 @@ def main():
     parser.add_argument("--no-meshcat", action="store_true", help="skip the runs with Meshcat")
     parser.add_argument("--repeats", type=int, default=2, help="part 2: alternating runs per figure, best kept")
     parser.add_argument("--test", action="store_true", help="a few ticks and 0.2 s: checks the script runs")
+    parser.add_argument("--shipped", default=str(SHIPPED), metavar="DIR",
+                        help="a shipped tool-positioning chain whose networks tick_ms_shipped times (default: "
+                        "checkpoints/tool_positioning; skipped when absent)")
     args = parser.parse_args()
     ticks, seconds, repeats = (20, 0.2, 1) if args.test else (args.ticks, args.seconds, args.repeats)
     if args.threads:
@@ -190,6 +226,13 @@ def main():
     results["tick_ms"], results["tick_cpu_ms"] = time_tick(ticks, computing=4)
     results["tick_ms_chain"], results["tick_cpu_ms_chain"] = time_tick(ticks, computing=1)
     results["tick_ms_torch"], results["tick_cpu_ms_torch"] = time_tick(ticks, computing=4, inference="torch")
+    results["tick_ms_shipped"] = results["tick_cpu_ms_shipped"] = None
+    if (Path(args.shipped) / "manifest.json").is_file():
+        results["tick_ms_shipped"], results["tick_cpu_ms_shipped"] = time_shipped_tick(args.shipped,
+                                                                                       "tool_positioning", ticks)
+        print(f"tool positioning, shipped networks ({args.shipped}), as the chain runs: "
+              f"{results['tick_ms_shipped']:.3f} ms wall, {results['tick_cpu_ms_shipped']:.3f} ms CPU (goal <= 1 ms)",
+              flush=True)
     print(f"load average {results['load_average']}; one tick, switcher (3 F, H=10) + 4 policies computing: "
           f"{results['tick_ms']:.3f} ms wall, {results['tick_cpu_ms']:.3f} ms CPU (goal <= 1 ms; memory floor "
           f"{results['tick_floor_ms']:.3f} ms: 4 x {results['policy_weights_mb']:.1f} MB of weights at "

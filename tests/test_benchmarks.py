@@ -46,6 +46,9 @@ def test_chain_runtime_reports_the_tick_its_memory_floor_and_the_real_time_facto
     for key in ("tick_ms", "tick_ms_chain", "tick_floor_ms", "memory_bandwidth_gbs", "policy_ms", "feasibility_ms",
                 "realtime_factor", "station_realtime_factor"):
         assert result[key] > 0, key
+    # The shipped chain's tick when the repository ships one (checkpoints/tool_positioning), else null.
+    shipped = (Path(__file__).resolve().parents[1] / "checkpoints" / "tool_positioning" / "manifest.json").is_file()
+    assert (result["tick_ms_shipped"] > 0) if shipped else result["tick_ms_shipped"] is None
     assert result["policy_weights_mb"] == pytest.approx(4 * (159 * 1024 + 1024 * 1024 + 1024 * 512 + 512 * 19
                                                              + 1024 + 1024 + 512 + 19) / 1e6, rel=1e-3)
     assert result["realtime_factor_meshcat"] is None  # --no-meshcat

@@ -209,6 +209,37 @@ def test_switcher_cap_zero_is_sequential_and_history_is_kept():
     assert [rig.run()[0] for _ in range(3)] == [1, 2, 3]
 
 
+class ReadProgress(ReadScore):
+    """A hand-written F of a time-aware stage: its input rows end with the stage's progress, which it returns."""
+
+    obs_dim = 3
+
+    def predict(self, history):
+        return float(np.asarray(history)[-1, -1])
+
+
+def test_switcher_appends_a_time_aware_stages_progress_as_its_env_does():
+    f = types.SimpleNamespace(model=ReadProgress(), threshold=1.0, config=types.SimpleNamespace(input_length=3))
+    # Stage 0 observes its progress over a 10-step episode: F^1 reads 2 observation entries plus the progress.
+    switcher = FeasibilitySwitcher([None, f], [2, 2], (10, 10), PERIOD, SwitcherParams(max_switches=0,
+                                                                                       time_steps=(10, 0)))
+    context = switcher.CreateDefaultContext()
+    switcher.GetInputPort("observation.0").FixValue(context, [0.5, 0.0])
+    simulator = Simulator(switcher, context)
+    simulator.Initialize()
+    tick(simulator, 4)
+    # Ticks 1-4 saw 0-3 steps taken in stage 0, as the env's observations after 0-3 steps: progress 0.0-0.3.
+    np.testing.assert_allclose(switcher.history(context, 0), [[0.5, 0.0, 0.1], [0.5, 0.0, 0.2], [0.5, 0.0, 0.3]])
+    assert switcher.GetOutputPort("feasibility_scores").Eval(context)[1] == pytest.approx(0.3)
+    tick(simulator, 9)  # Stage 1 executes from the 11th tick on: stage 0's rows then say it is over (1).
+    assert int(switcher.GetOutputPort("active_stage").Eval(context)[0]) == 1
+    np.testing.assert_allclose(switcher.history(context, 0)[:, -1], [1.0, 1.0, 1.0])
+    with pytest.raises(ValueError, match=r"reads 3-dim histories, but stage 0's observation has 2; use the F"):
+        FeasibilitySwitcher([None, f], [2, 2], (10, 10), PERIOD)
+    with pytest.raises(ValueError, match="time_steps needs one entry"):
+        FeasibilitySwitcher([None, f], [2, 2], (10, 10), PERIOD, SwitcherParams(time_steps=(10,)))
+
+
 def test_switcher_cap_and_missing_f_fall_back_to_sequential():
     rig = SwitcherRig(max_switches=1, budgets=(4, 4, 4, 4), trigger="any_later")
     rig.set(0.0, 0.0, 3.0)
@@ -302,8 +333,8 @@ def test_chain_controller_runs_with_a_station(tmp_path):
         SetChainTarget(controller, context, int(body.index()))
     SetChainTarget(controller, context, int(body.index()), goal=[0.5, 0.1, 0.6, 1, 0, 0, 0])
     simulator.Initialize()
-    # Ticks 0..21: approach done at tick 0, orient 10 ticks, grasp 10, restart at tick 20. (Later, the untrained
-    # fingers nudge the block past the OSC's re-engage distance, at a tick that depends on every detail.)
+    # Ticks 0..21: approach done at tick 0, orient 10 ticks, grasp 10, restart at tick 20, which re-arms the
+    # approach (the switch changes the OSC's stage_epoch; the hand has left the hover point).
     simulator.AdvanceTo(0.36)
     chain_context = controller.GetMyContextFromRoot(context)
 
@@ -314,7 +345,7 @@ def test_chain_controller_runs_with_a_station(tmp_path):
              "approach_active": 1, "action": 19, "executing_stage": 1, "switches_used": 1, "approach_target": 3}
     assert {name: out(name).shape for name in sizes} == {name: (size,) for name, size in sizes.items()}
     assert np.isnan(out("feasibility_scores")[:2]).all() and abs(out("feasibility_scores")[2]) < 1e-2
-    assert out("approach_active")[0] == 0.0
+    assert out("approach_active")[0] == 1.0
     assert (out("active_stage")[0], out("executing_stage")[0], out("switches_used")[0]) == (0, 0, 1)
     policy = controller.GetSubsystemByName("policy.0")
     policy_context = policy.GetMyContextFromRoot(context)

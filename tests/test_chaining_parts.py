@@ -143,3 +143,21 @@ def test_run_chain_sequential_and_switcher_rules():
 
     # max_switches = 0 ignores F entirely.
     assert run_chain(envs, forward, seed=0, feasibility=bypass, max_switches=0).stages_run == [0, 1, 2]
+
+
+def test_intermediate_transitions_hand_over_before_the_previous_stage_ends():
+    from seqdex_drake.chaining.rollouts import collect_transitions
+
+    envs = [CounterEnv(length=6, goal=3.0), CounterEnv(length=3, goal=4.0)]
+    data = collect_transitions(envs, [lambda obs: np.ones(1)] * 2, 1, episodes=2, seed=0, history=4,
+                               intermediate=5)
+    steps = np.array([state[1] for state in data.states])  # Stage 0's steps at each hand-over.
+    assert data.histories.shape == (7, 4, 2) and len(data.returns) == 7
+    assert list(steps[:2]) == [6, 6]  # Terminal hand-overs: the whole budget.
+    assert np.all((steps[2:] >= 1) & (steps[2:] <= 5))  # Early ones: after 1 .. budget - 1 steps.
+    # The history ends at the hand-over, and stage 1 starts there: fewer steps of stage 0, a lower return.
+    np.testing.assert_array_equal(data.histories[:, -1, 1], steps)
+    assert np.all(data.returns[2:] < data.returns[0]) and data.successes[:2].all()
+    # The same seed draws the same cut points.
+    again = collect_transitions(envs, [lambda obs: np.ones(1)] * 2, 1, episodes=2, seed=0, history=4, intermediate=5)
+    np.testing.assert_array_equal([state[1] for state in again.states], steps)

@@ -206,6 +206,24 @@ def test_handover_hysteresis():
     assert osc.GetOutputPort("approach_active").Eval(context)[0] == 1.0
 
 
+def test_a_new_stage_epoch_restarts_the_approach():
+    osc, simulator, context = _standalone()
+    p_WC = osc.controlled_point(np.asarray(LoadScenario(SCENARIO).robot.arm_home))
+    osc.GetInputPort("target_position").FixValue(context, p_WC - [0.0, 0.0, 0.05 + 0.005])
+    epoch = osc.GetInputPort("stage_epoch")
+    epoch.FixValue(context, [0.0])
+    simulator.Initialize()
+    simulator.AdvanceTo(0.02)
+    assert osc.GetOutputPort("approach_active").Eval(context)[0] == 0.0
+    # 9 cm away: inside the re-engage distance, so only a new epoch (a restarted stage) re-arms the approach.
+    osc.GetInputPort("target_position").FixValue(context, p_WC - [0.0, 0.0, 0.09])
+    simulator.AdvanceTo(0.04)
+    assert osc.GetOutputPort("approach_active").Eval(context)[0] == 0.0
+    epoch.FixValue(context, [1.0])
+    simulator.AdvanceTo(0.06)
+    assert osc.GetOutputPort("approach_active").Eval(context)[0] == 1.0
+
+
 def test_nan_target_raises_clear_error():
     osc, simulator, context = _standalone()
     osc.GetInputPort("target_position").FixValue(context, [0.3, np.nan, 0.75])

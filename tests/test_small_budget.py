@@ -245,6 +245,20 @@ def test_learning_curves_merge_resumed_runs_and_count_only_training_time(tmp_pat
         read_curve(tmp_path)
 
 
+def test_a_curve_that_continues_another_runs_checkpoint_counts_only_its_own_updates(tmp_path):
+    from torch.utils.tensorboard import SummaryWriter
+
+    from seqdex_drake.evaluation.learning_curves import read_curve
+
+    writer = SummaryWriter(str(tmp_path))  # A fine-tuning phase: its first update ends at step 10 064, 10 s apart.
+    for i, step in enumerate((10_064, 10_128, 10_192)):
+        writer.add_scalar("charts/SPS", 6.4, step, walltime=100.0 + 10.0 * i)
+    writer.close()
+    curve = read_curve(tmp_path)
+    # The first update took one batch (64 steps) at 6.4 steps/s, not 10 064 steps' worth.
+    np.testing.assert_allclose(curve["wall_clock_s"], [10.0, 20.0, 30.0])
+
+
 def test_policy_system_applies_the_phases_on_its_active_ticks():
     """A deployed policy trained with scripted phases gets them too: its raw action follows the schedule on the
     ticks counted since it became active (here: always active, from tick 0)."""

@@ -36,7 +36,7 @@ from seqdex_drake.chaining.wrappers import InitialStateVectorEnv, TransitionBonu
 from seqdex_drake.env_state import EnvState
 from seqdex_drake.rl.config import PPOConfig
 from seqdex_drake.rl.ppo import PPO
-from seqdex_drake.tasks.registry import default_config, observation_spec
+from seqdex_drake.tasks.registry import budget_config, default_config, observation_spec
 
 #: Observations kept per transition (the history ablation goes up to H = 15).
 TRANSITION_HISTORY = 15
@@ -90,7 +90,7 @@ class Pipeline:
 
     # -------------------------------------------------------------------------------------------- pieces
     def _task_config(self, task: str):
-        config = default_config(task)
+        config = budget_config(task) if self.config.preset == "budget" else default_config(task)
         if self.config.episode_length_cap > 0:
             config = dataclasses.replace(config, episode_length=min(config.episode_length,
                                                                     self.config.episode_length_cap))
@@ -102,7 +102,8 @@ class Pipeline:
             overrides.update(actor_hidden_sizes=self.config.hidden_sizes, critic_hidden_sizes=self.config.hidden_sizes)
         if self.config.episode_length_cap > 0:  # Tiny runs: a few short rollouts per update.
             overrides.update(horizon=8, num_minibatches=2)
-        return PPOConfig.for_task(task, **overrides)
+        residual = bool(self.task_configs[self.stages.index(task)].residual)
+        return PPOConfig.for_preset(task, self.config.preset, residual=residual, **overrides)
 
     def stage_envs(self) -> list:
         """One in-process env per stage (for rollouts and evaluation), built once."""
@@ -123,14 +124,14 @@ class Pipeline:
                                 "vector envs; pass env_kit=seqdex_drake.envs.factory.pipeline_env_kit()")
         return self.env_kit
 
-    def _vector_env(self, index: int, seed: int):
+    def _vector_env(self, index: int, seed: int, num_envs: int):
         task, config = self.stages[index], self.task_configs[index]
         kit = self.require_env_kit()
         if self.config.backend == "process":
-            return kit.process_vector_env(task, self.config.num_envs, seed=seed, config=config,
+            return kit.process_vector_env(task, num_envs, seed=seed, config=config,
                                           envs_per_worker=self.config.envs_per_worker)  # None: one per core.
         return kit.serial_vector_env([lambda slot=slot: pooled_env(task, config, 1 + slot)
-                                      for slot in range(self.config.num_envs)], seed=seed)
+                                      for slot in range(num_envs)], seed=seed)
 
     def policies(self, upto: int | None = None) -> list:
         """The chain's current policies of stages ``0 .. upto`` (default: all), as deterministic callables."""
@@ -151,29 +152,35 @@ class Pipeline:
             f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in outcome.items()))
         return outcome
 
-    def phase_learner(self, phase: str, steps: int, start_from=None):
+    def phase_learner(self, phase: str, steps: int, start_from=None, fresh_episodes: bool = False):
         """The learner and step target of PPO phase ``phase``: an interrupted phase continues from its own
         ``last.pt`` toward its recorded target; a new one starts from ``start_from`` (or from scratch: None is
-        returned and the caller builds the learner) and records its target at once, so a kill keeps it."""
+        returned and the caller builds the learner) and records its target at once, so a kill keeps it.
+        ``fresh_episodes``: drop the env state saved in ``start_from`` (a checkpoint of another run, whose envs
+        are not this phase's), so the phase starts new episodes."""
         directory = self.run.phase_dir(phase)
         targets = self.run.record.setdefault("targets", {})
         if (directory / "last.pt").is_file() and phase in targets:
             return PPO.resume(directory / "last.pt"), targets[phase]
         ppo = PPO.resume(start_from) if start_from is not None else None
+        if ppo is not None and fresh_episodes:
+            ppo._saved_env_state = None
         targets[phase] = (0 if ppo is None else ppo.global_step) + steps
         self.run.save()
         return ppo, targets[phase]
 
     def train_stage(self, phase: str, index: int, steps: int, start_from=None, buffer_path=None,
-                    bonus=None) -> dict:
-        """PPO on stage ``index`` for ``steps`` env steps (from scratch, or continuing ``start_from``), its
-        episodes starting from ``buffer_path``'s states if given, its reward shaped by ``bonus`` if given; the
-        result becomes the chain's policy for that stage."""
+                    bonus=None, foreign: bool = False) -> dict:
+        """PPO on stage ``index`` for ``steps`` env steps (from scratch, or continuing ``start_from``; ``foreign``:
+        a checkpoint of another run, see :meth:`phase_learner`), its episodes starting from ``buffer_path``'s
+        states if given, its reward shaped by ``bonus`` if given; the result becomes the chain's policy for that
+        stage."""
         def work():
             task, directory = self.stages[index], self.run.phase_dir(phase)
-            ppo, target = self.phase_learner(phase, steps, start_from)
+            ppo, target = self.phase_learner(phase, steps, start_from, fresh_episodes=foreign)
             seed = self.config.seed + 1000 * index
-            env = self._vector_env(index, seed)
+            num_envs = ppo.config.num_envs if ppo is not None else self._ppo_config(task).num_envs
+            env = self._vector_env(index, seed, num_envs)
             try:
                 if buffer_path is not None:
                     buffer = TerminalBuffer.load(buffer_path, expected_task=task)
@@ -218,20 +225,21 @@ class Pipeline:
 
         return self._timed(phase, work)
 
-    def collect_transition_data(self, phase: str, index: int) -> dict:
+    def collect_transition_data(self, phase: str, index: int, intermediate: int = 0) -> dict:
         """Chain-prefix rollouts into stage ``index``: pi^{index-1}'s terminal histories (H = 15, the longest the
-        history ablation uses) with pi^{index}'s returns and successes, saved to ``transitions/<task>.npz``."""
+        history ablation uses) with pi^{index}'s returns and successes, saved to ``transitions/<task>.npz``; and
+        ``intermediate`` early hand-overs (:func:`~seqdex_drake.chaining.rollouts.collect_transitions`)."""
         def work():
             data = collect_transitions(self.stage_envs(), self.policies(index), index,
                                        self.config.transition_episodes, self.config.seed + 104729 * index,
-                                       history=max(TRANSITION_HISTORY, self.config.history))
+                                       history=max(TRANSITION_HISTORY, self.config.history), intermediate=intermediate)
             arrays = {"histories": data.histories, "returns": data.returns, "successes": data.successes,
                       "source_successes": data.source_successes}
             payload = io.BytesIO()
             np.savez(payload, **arrays)
             atomic_write(self.run.transitions(self.stages[index]), lambda file: file.write(payload.getvalue()))
-            return {"episodes": len(data.returns), "target_success_rate": float(data.successes.mean()),
-                    "mean_return": float(data.returns.mean())}
+            return {"episodes": len(data.returns), "intermediate": intermediate,
+                    "target_success_rate": float(data.successes.mean()), "mean_return": float(data.returns.mean())}
 
         return self._timed(phase, work)
 
@@ -312,9 +320,37 @@ class Pipeline:
         stages = self.stages
         for i, task in enumerate(stages):
             buffer = self.run.buffer(stages[i - 1], task) if i > 0 else None
-            self.train_stage(f"forward_{i}_{task}", i, self.config.stage_steps, buffer_path=buffer)
+            start = self.initial_checkpoint(i)
+            self.train_stage(f"forward_{i}_{task}", i, self.config.stage_steps, start_from=start, buffer_path=buffer,
+                             foreign=start is not None)
             if i + 1 < len(stages):
                 self.collect_buffer(f"buffer_0_{task}", i)
+
+    def initial_checkpoint(self, index: int):
+        """The checkpoint stage ``index``'s forward phase continues (``config.init_checkpoints``), checked against
+        the stage: its observation spec and action size must be the stage env's; None if there is none."""
+        from pathlib import Path
+
+        from seqdex_drake.rl.checkpoint import CheckpointError, load_checkpoint
+
+        task = self.stages[index]
+        path = self.config.init_checkpoints.get(task)
+        if path is None:
+            return None
+        try:
+            state = load_checkpoint(path, map_location="cpu")
+        except (CheckpointError, FileNotFoundError) as error:
+            raise PipelineError(f"init checkpoint of {task}: {error}") from error
+        env = self.stage_envs()[index]
+        expected = observation_spec(task, env.observation_space.shape[0]).to_dict()
+        if state.get("obs_spec") != expected:
+            raise PipelineError(f"init checkpoint {path} records the observation spec {state.get('obs_spec')}, "
+                                f"the {task} stage ({self.config.preset} preset) reads {expected}: another task's "
+                                f"policy or another preset")
+        if state["dims"]["action_dim"] != env.action_space.shape[0]:
+            raise PipelineError(f"init checkpoint {path} acts in {state['dims']['action_dim']} dims, the {task} "
+                                f"stage in {env.action_space.shape[0]}: another task config")
+        return Path(path)
 
     def backward(self) -> None:
         """Algorithm 1's ``iterations`` passes after the first forward one. Pass m > 1 first runs the forward

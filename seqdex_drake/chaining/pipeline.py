@@ -34,6 +34,8 @@ from seqdex_drake.chaining.feasibility import FeasibilityConfig
 METHODS = ("seqdex", "seqdex_no_temporal", "policy_seq", "tstar", "vchain", "scratch", "curriculum")
 #: Methods that train one policy per stage and chain them (the others train one policy over the whole chain).
 CHAINED_METHODS = METHODS[:5]
+#: Task configs and PPO presets of the stages (see ``PipelineConfig.preset``).
+PRESETS = ("paper", "budget")
 #: Evaluation episodes are seeded from here on (training resets use the run seed and its step counts).
 EVAL_SEED = 100_000
 
@@ -80,7 +82,16 @@ class PipelineConfig:
     max_switches: int = 3
     """Switches the evaluation's switcher may make (ours; 0 gives the sequential figure too)."""
     num_envs: int = 2
-    """Parallel envs of each PPO phase."""
+    """Parallel envs of each PPO phase that starts from scratch (one that continues a checkpoint keeps its
+    learner's count)."""
+    preset: str = "paper"
+    """``paper``: every stage is the task's default MDP trained with the paper's PPO column (pure PPO, for a
+    cluster); ``budget``: the task's small-budget variant (``tasks.registry.budget_config``: scripted phases,
+    residual on a scripted base) with the budget PPO preset, as ``seqdex train --preset budget`` trains it."""
+    init_checkpoints: dict[str, str] = dataclasses.field(default_factory=dict)
+    """Per task, a checkpoint (``seqdex train``'s ``last.pt``, same preset) that the stage's forward phase
+    continues for ``stage_steps`` more steps instead of starting from scratch: training done before the
+    pipeline (e.g. over several sessions) counts as its forward phase."""
     backend: str = "process"
     """Vector env of the sub-task phases: ``process`` (worker processes) or ``serial`` (in this process)."""
     envs_per_worker: int | None = None
@@ -101,6 +112,9 @@ class PipelineConfig:
             raise PipelineError(f"backend must be 'process' or 'serial', got {self.backend!r}")
         if self.envs_per_worker is not None and self.envs_per_worker < 1:
             raise PipelineError(f"envs_per_worker must be >= 1, got {self.envs_per_worker}")
+        if self.preset not in PRESETS:
+            raise PipelineError(f"unknown preset {self.preset!r}; presets: {', '.join(PRESETS)}")
+        self.init_checkpoints = {str(task): str(path) for task, path in dict(self.init_checkpoints).items()}
         self.hidden_sizes = tuple(int(h) for h in self.hidden_sizes)
 
     @classmethod
@@ -119,6 +133,7 @@ class PipelineConfig:
     def to_dict(self) -> dict:
         data = dataclasses.asdict(self)
         data["hidden_sizes"] = list(self.hidden_sizes)
+        data["init_checkpoints"] = dict(self.init_checkpoints)
         return data
 
 
@@ -145,6 +160,8 @@ class RunDirectory:
             if not self.record_path.is_file():
                 raise PipelineError(f"--resume: {self.record_path} does not exist; start the run without --resume")
             saved = json.loads(self.record_path.read_text())
+            for key, value in PipelineConfig().to_dict().items():  # Fields added since the run started: their
+                saved["config"].setdefault(key, value)             # defaults are what it ran with.
             # How the work is spread over processes changes no result: a run may resume with another layout.
             saved["config"].update({k: record["config"][k] for k in LAYOUT_KEYS})
             if saved["config"] != record["config"] or saved["stages"] != record["stages"]:

@@ -93,15 +93,28 @@ class Transitions:
 
 
 def collect_transitions(envs: Sequence, policies: Sequence[Policy], target: int, episodes: int, seed: int,
-                        history: int = 10) -> Transitions:
+                        history: int = 10, intermediate: int = 0) -> Transitions:
     """Runs the chain prefix ``0 .. target`` ``episodes`` times (episode ``e`` seeded ``seed + e``), handing each
     stage's final state to the next, and records pi^{target-1}'s last ``history`` observations with
-    pi^{target}'s return and success (successes and failures alike: F must learn both)."""
+    pi^{target}'s return and success (successes and failures alike: F must learn both).
+
+    ``intermediate`` more episodes (seeded ``seed + episodes + e``) hand over early, after a uniformly drawn
+    number of pi^{target-1}'s steps (1 .. its budget - 1): the switcher scores F on every tick of stage
+    ``target - 1``, so an F meant for switching must also have seen the states before that stage's end (from which
+    pi^{target} mostly fails) rather than extrapolate to them from terminal states alone."""
     if not 1 <= target < len(envs):
         raise ValueError(f"target must be in [1, {len(envs) - 1}] (F^1 does not exist), got {target}")
     rows = {key: [] for key in ("histories", "returns", "successes", "source_successes", "states", "first")}
-    for episode in range(episodes):
-        result = run_prefix(envs, policies, target - 1, seed + episode)
+    cuts = np.random.default_rng([seed, target]).integers(1, envs[target - 1].config.episode_length,
+                                                          size=intermediate)
+    for episode in range(episodes + intermediate):
+        if episode < episodes:
+            result = run_prefix(envs, policies, target - 1, seed + episode)
+        else:
+            cut = int(cuts[episode - episodes])
+            before = None if target == 1 else run_prefix(envs, policies, target - 2, seed + episode).state
+            result = run_stage(envs[target - 1], policies[target - 1], seed=seed + episode if target == 1 else None,
+                               initial_state=before, stop=lambda observations, cut=cut: len(observations) > cut)
         state = result.state
         nxt = run_stage(envs[target], policies[target], initial_state=state)
         rows["histories"].append(pad_history(result.observations, history))

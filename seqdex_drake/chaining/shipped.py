@@ -86,15 +86,16 @@ def _stage_config(task: str, preset: str, residual: bool = True):
 
 
 def ship_chain(folder: str | Path, chain: str, stages: list[StageRecord], feasibility: dict[str, Path] | None = None,
-               commit: str = "") -> Path:
-    """Copies the stages' checkpoints (and F files, by target task) into ``folder`` and writes its manifest."""
+               commit: str = "", extra: dict | None = None) -> Path:
+    """Copies the stages' checkpoints (and F files, by target task) into ``folder`` and writes its manifest
+    (``extra``: more top-level entries, e.g. the pipeline run it came from)."""
     from seqdex_drake.atomic import atomic_write
     from seqdex_drake.cli import config_dict
     from seqdex_drake.rl.checkpoint import load_checkpoint
 
     folder = Path(folder)
     manifest = {"format": FORMAT, "version": VERSION, "chain": chain, "commit": commit, "stages": {},
-                "feasibility": {}}
+                "feasibility": {}, **(extra or {})}
     for stage in stages:
         state = load_checkpoint(stage.checkpoint, map_location="cpu")
         target = folder / "stages" / stage.task / "best.pt"

@@ -1,6 +1,6 @@
 """``seqdex``: the command line entry point.
 
-Subcommands (each takes ``--run-dir``, ``--seed``, ``--resume`` and ``--test``)::
+Subcommands (most take ``--run-dir``, ``--seed``, ``--resume`` and ``--test``)::
 
     seqdex train --task grasp [--steps N] [--num-envs 2] [--initial-states BUFFER] [--checkpoint-seconds S]
     seqdex collect --task grasp --checkpoint RUN/last.pt --episodes N --out BUFFER [--keep-failures]
@@ -9,6 +9,7 @@ Subcommands (each takes ``--run-dir``, ``--seed``, ``--resume`` and ``--test``):
     seqdex finetune --run-dir RUN
     seqdex evaluate --task building_blocks|tool_positioning --run-dir RUN
     seqdex rollout --task lower --checkpoint RUN/last.pt --episodes N [--out results.json]
+    seqdex ship --run-dir RUN [--out checkpoints/<chain>] [--force]
 
 ``--test`` runs a tiny budget (episodes of a few steps, small networks, one PPO update, two collected
 episodes) for smoke tests and CI. Bad input exits with status 2 and a one-line message (no traceback); see
@@ -77,11 +78,12 @@ def build_parser() -> argparse.ArgumentParser:
     collect.add_argument("--out", help="the buffer file (default: <run-dir>/terminal_<task>_to_<next>.npz)")
     collect.add_argument("--keep-failures", action="store_true", help="also record unsuccessful episodes")
 
-    from seqdex_drake.cli import evaluate, pipeline, rollout
+    from seqdex_drake.cli import evaluate, pipeline, rollout, ship
 
     pipeline.add_parsers(commands)
     evaluate.add_parser(commands)
     rollout.add_parser(commands)
+    ship.add_parser(commands)
     return parser
 
 
@@ -103,6 +105,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         from seqdex_drake.cli.evaluate import run
     elif args.command == "rollout":
         from seqdex_drake.cli.rollout import run
+    elif args.command == "ship":
+        from seqdex_drake.cli.ship import run
     else:
         from seqdex_drake.cli import pipeline
 

@@ -1,14 +1,18 @@
 """``seqdex pipeline``, ``seqdex feasibility`` and ``seqdex finetune``: the bi-directional pipeline for a chain.
 
     seqdex pipeline --chain handover --method seqdex [--stage-steps N] [--finetune-steps N] [--iterations M]
-    seqdex feasibility --run-dir RUN --task lower [--history H] [--no-temporal]
+                    [--preset paper|budget] [--init TASK=CHECKPOINT ...] [--num-envs N]
+    seqdex feasibility --run-dir RUN --task lower [--history H] [--no-temporal] [--recollect [--intermediate N]]
     seqdex finetune --run-dir RUN
 
 ``pipeline`` runs a whole method (:mod:`seqdex_drake.chaining.pipeline`): forward initialization, backward
 fine-tuning and the evaluation, or a baseline on the same phases and budget; ``--resume`` continues an
-interrupted run where it stopped. ``feasibility`` (re)trains F for one stage of a run from its saved
-transitions (collecting them first if needed), e.g. for the history ablation (``--history 0/5/10/15`` writes
-``feasibility/<task>_h<H>.pt``). ``finetune`` runs the backward passes of a run whose forward phase is done.
+interrupted run where it stopped. ``--preset budget`` trains each stage's small-budget variant with the budget
+PPO preset, and ``--init`` continues a stage's forward phase from a ``seqdex train`` run (``--stage-steps 0``
+when every stage has one: the runs already trained count as the forward phase). ``feasibility`` (re)trains F
+for one stage of a run from its saved transitions (collecting them first if needed), e.g. for the history
+ablation (``--history 0/5/10/15`` writes ``feasibility/<task>_h<H>.pt``). ``finetune`` runs the backward
+passes of a run whose forward phase is done.
 """
 
 import sys
@@ -24,7 +28,7 @@ METHOD_HELP = ("seqdex (ours), seqdex_no_temporal (F without history), policy_se
 def add_parsers(commands) -> None:
     """Adds ``pipeline``, ``feasibility`` and ``finetune`` to the argparse subparsers object ``commands``."""
     from seqdex_drake.chaining.chain import ChainNames
-    from seqdex_drake.chaining.pipeline import METHODS
+    from seqdex_drake.chaining.pipeline import METHODS, PRESETS
 
     pipeline = commands.add_parser("pipeline", help="run a whole chaining method (forward, backward, evaluation)",
                                    description="Forward initialization, backward fine-tuning and evaluation of a "
@@ -38,6 +42,13 @@ def add_parsers(commands) -> None:
     pipeline.add_argument("--transition-episodes", type=int, help="rollouts per hand-over for buffers and F")
     pipeline.add_argument("--eval-episodes", type=int, help="chain episodes of the final evaluation")
     pipeline.add_argument("--lambda2", type=float, help="weight of the transition bonus (lambda1 is 1)")
+    pipeline.add_argument("--preset", choices=PRESETS, help="paper: each task's default MDP, the paper's PPO "
+                          "(default); budget: each task's small-budget variant and PPO preset (seqdex train "
+                          "--preset budget)")
+    pipeline.add_argument("--init", action="append", default=[], metavar="TASK=CHECKPOINT",
+                          help="continue stage TASK's forward phase from this checkpoint (a seqdex train run's "
+                          "last.pt, same preset) for --stage-steps more steps (0 allowed); repeatable")
+    pipeline.add_argument("--num-envs", type=int, help="envs of a PPO phase that starts from scratch (default 2)")
     pipeline.add_argument("--backend", choices=["process", "serial"], help="vector env of the PPO phases")
     pipeline.add_argument("--envs-per-worker", type=int,
                           help="process backend: envs per worker process (default: ceil(num envs / cores))")
@@ -51,6 +62,12 @@ def add_parsers(commands) -> None:
     feasibility.add_argument("--no-temporal", action="store_true", help="the MLP on the last observation")
     feasibility.add_argument("--out", help="output file (default: feasibility/<task>.pt for H = 10, else "
                              "feasibility/<task>_h<H>.pt)")
+    feasibility.add_argument("--recollect", action="store_true",
+                             help="collect the transitions again with the run's current policies (e.g. after the "
+                             "fine-tuning: the F the switcher deploys), replacing transitions/<task>.npz")
+    feasibility.add_argument("--intermediate", type=int, default=0, metavar="N",
+                             help="with --recollect: N more rollouts that hand over after a random number of the "
+                             "previous stage's steps, so F also knows the states the switcher scores mid-stage")
     _common(feasibility, "reuse the run's saved transitions (always done when present)", run_dir_required=True)
 
     finetune = commands.add_parser("finetune", help="backward fine-tuning of a run whose forward phase is done",
@@ -90,13 +107,25 @@ def run_pipeline(args) -> int:
     overrides = {key: value for key, value in (
         ("stage_steps", args.stage_steps), ("finetune_steps", args.finetune_steps), ("iterations", args.iterations),
         ("transition_episodes", args.transition_episodes), ("eval_episodes", args.eval_episodes),
-        ("lambda2", args.lambda2), ("backend", args.backend), ("envs_per_worker", args.envs_per_worker))
-        if value is not None}
+        ("lambda2", args.lambda2), ("backend", args.backend), ("envs_per_worker", args.envs_per_worker),
+        ("num_envs", args.num_envs), ("preset", args.preset)) if value is not None}
+    init = _init_checkpoints(args.init)
     for key, value in overrides.items():
-        if key != "backend" and key != "lambda2" and value < 1:
+        if key in ("backend", "lambda2", "preset") or (key == "stage_steps" and value == 0 and init):
+            continue
+        if value < 1:
             raise CliError(f"--{key.replace('_', '-')} must be >= 1, got {value}")
+    if init:
+        overrides["init_checkpoints"] = init
     try:
         chain = LoadChain(args.chain, valid_tasks=task_names())
+        strangers = sorted(set(init) - set(chain.stages))
+        if strangers:
+            raise CliError(f"--init names {', '.join(strangers)}, not a stage of {args.chain} "
+                           f"({' -> '.join(chain.stages)})")
+        if overrides.get("stage_steps") == 0 and set(init) != set(chain.stages):
+            raise CliError(f"--stage-steps 0 leaves the stages without --init untrained "
+                           f"({', '.join(t for t in chain.stages if t not in init)}); give each one a checkpoint")
         make = PipelineConfig.tiny if args.test else PipelineConfig
         config = make(chain=args.chain, method=args.method, seed=args.seed, **overrides)
         run_dir = Path(args.run_dir or f"runs/{args.chain}_{args.method}_s{args.seed}")
@@ -109,6 +138,21 @@ def run_pipeline(args) -> int:
         raise CliError(str(error), code=1) from error
     print(f"seqdex pipeline: {_summary(results)}; results in {run_dir / 'results.json'}")
     return 0
+
+
+def _init_checkpoints(values: list[str]) -> dict[str, str]:
+    """``--init TASK=CHECKPOINT`` flags as a dict; :class:`CliError` for a malformed one or a missing file."""
+    init = {}
+    for value in values:
+        task, sep, path = value.partition("=")
+        if not sep or not task or not path:
+            raise CliError(f"--init {value!r}: expected TASK=CHECKPOINT, e.g. --init tool_grasp=runs/x/last.pt")
+        if task in init:
+            raise CliError(f"--init names {task} twice")
+        if not Path(path).is_file():
+            raise CliError(f"--init {task}: {path} does not exist")
+        init[task] = path
+    return init
 
 
 def _open(args):
@@ -135,14 +179,22 @@ def run_feasibility(args) -> int:
     for task in pipeline.stages[:index + 1]:
         if not pipeline.run.policy(task).is_file():
             raise CliError(f"{pipeline.run.policy(task)} is missing; run seqdex pipeline on {args.run_dir} first")
+    if args.intermediate < 0 or (args.intermediate and not args.recollect):
+        raise CliError("--intermediate takes a count >= 0 and needs --recollect")
     try:
-        if not pipeline.run.transitions(args.task).is_file():
+        if args.recollect:  # Its own phase name: an interrupted recollection resumes, a finished one is kept.
+            phase = f"transitions_recollect_{args.task}_i{args.intermediate}"
+            pipeline.collect_transition_data(phase, index, intermediate=args.intermediate)
+        elif not pipeline.run.transitions(args.task).is_file():
             pipeline.collect_transition_data(f"transitions_cli_{args.task}", index)
         temporal = not args.no_temporal and args.history > 0
         default = pipeline.run.feasibility(args.task)
         out = Path(args.out) if args.out else (default if temporal and args.history == 10 else
                                                 default.with_name(f"{args.task}_h{args.history if temporal else 0}.pt"))
         outcome = pipeline.fit_feasibility(index, args.history, temporal, out)
+        # On the record, so what a shipped F was fitted on is known (seqdex ship copies pipeline.json's summary).
+        pipeline.run.finish(f"feasibility_cli_{args.task}_h{outcome['history']}",
+                            dict(outcome, out=str(out), recollected=args.recollect, intermediate=args.intermediate))
     except RuntimeError as error:
         raise CliError(str(error), code=1) from error
     print(f"seqdex feasibility: F for {args.task} (H = {outcome['history']}, {'attention' if temporal else 'MLP'}), "

@@ -110,7 +110,7 @@ def _check_state_layout(env, buffer) -> None:
 
 def _new_run(args, run_dir: Path, config) -> tuple:
     """The PPO config and saved run record of a fresh run; refuses to overwrite an existing run."""
-    from seqdex_drake.rl.config import RESIDUAL_HYPERPARAMETERS, PPOConfig
+    from seqdex_drake.rl.config import PPOConfig
 
     if (run_dir / "last.pt").exists():
         raise CliError(f"{run_dir} already holds a run (last.pt); continue it with --resume or pick another "
@@ -120,8 +120,6 @@ def _new_run(args, run_dir: Path, config) -> tuple:
         overrides["num_envs"] = args.num_envs or TEST_NUM_ENVS
     if args.demos is not None:  # DAPG: the demonstration term, less exploration around the cloned policy.
         overrides.update(demo_coef=args.demo_coef, init_log_std=math.log(DEMO_INIT_STD))
-    elif config.residual and args.preset == "budget":  # Small, KL-bounded steps around the scripted base.
-        overrides.update(RESIDUAL_HYPERPARAMETERS)
     if args.test:
         overrides.update(actor_hidden_sizes=TEST_HIDDEN_SIZES, critic_hidden_sizes=TEST_HIDDEN_SIZES,
                          horizon=TEST_HORIZON)
@@ -129,8 +127,9 @@ def _new_run(args, run_dir: Path, config) -> tuple:
         overrides["total_steps"] = args.steps
     if args.checkpoint_seconds is not None:
         overrides["checkpoint_seconds"] = args.checkpoint_seconds
-    preset = PPOConfig.for_budget if args.preset == "budget" else PPOConfig.for_task
-    ppo_config = preset(args.task, **overrides)
+    # A residual on a scripted base (budget preset, no demonstrations) takes small, KL-bounded steps around it.
+    ppo_config = PPOConfig.for_preset(args.task, args.preset, residual=bool(config.residual) and args.demos is None,
+                                      **overrides)
     record = {"task": args.task, "test": args.test, "initial_states": args.initial_states, "preset": args.preset,
               "demos": args.demos, "ppo": ppo_config.to_dict(), "task_config": config_dict(config)}
     return ppo_config, record

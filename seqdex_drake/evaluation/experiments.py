@@ -4,8 +4,10 @@ at most 0 / 1 / 2 / 3 feasibility switches), the history ablation (H = 0 / 5 / 1
 
 Every episode is one object: a block of a type (1-5 trained, 6-8 unseen) from a cached pile to a sampled
 stud-aligned goal on the baseplate, or a tool (hammer trained; spatula, spoon unseen) from the table to its
-flipped pose. Episode records go to ``episodes.jsonl`` in the output directory; ``resume`` skips the
-episodes already recorded there.
+flipped pose. ``EvalConfig.objects`` restricts every experiment to some objects. Episode records go to
+``episodes.jsonl`` in the output directory; ``resume`` skips the episodes already recorded there. With
+``EvalConfig.workers`` > 1 the episodes run in worker processes (``evaluation/parallel.py``), seeds split over them;
+every episode is seeded by (seed, object, episode) and the runner by the first seed, so the records are the same.
 """
 
 import dataclasses
@@ -43,9 +45,13 @@ class EvalConfig:
     time_limit: float | None = None
     """Simulated seconds per episode (None: the runner's budget-based limit)."""
     ablation_objects: tuple | None = None
-    """Objects the ablations run on (None: all)."""
+    """Objects the ablations run on, of ``objects`` (None: all of them)."""
     untrained_hidden_sizes: tuple[int, ...] | None = None
     resume: bool = False
+    objects: tuple | None = None
+    """Objects the main table and the ablations run on (tool indices, block types; None: all)."""
+    workers: int = 1
+    """Processes running the episodes (seeds round-robin over at most ``len(seeds)`` of them)."""
 
 
 def objects_of(family: str) -> list[tuple]:
@@ -53,6 +59,71 @@ def objects_of(family: str) -> list[tuple]:
     if family == "building_blocks":
         return [(t, f"Block {t}", BLOCK_SPECS[t].split == "trained") for t in sorted(BLOCK_SPECS)]
     return [(k, name, k == 0) for k, name in enumerate(TOOL_SPECS)]
+
+
+def object_keys(family: str, names) -> tuple:
+    """The object keys of ``names``: tool names (hammer, spatula, spoon) or block types ("1" .. "8"), in
+    :func:`objects_of` order, duplicates dropped. Raises ValueError naming the valid ones."""
+    objects = objects_of(family)
+    valid = {label if family == "tool_positioning" else str(key): key for key, label, _ in objects}
+    unknown = [name for name in names if str(name) not in valid]
+    if unknown:
+        kind = "tool" if family == "tool_positioning" else "block type"
+        raise ValueError(f"unknown {kind}{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))}; "
+                         f"valid {family} objects: {', '.join(valid)}")
+    keep = {valid[str(name)] for name in names}
+    return tuple(key for key, _, _ in objects if key in keep)
+
+
+def selected_objects(config: EvalConfig, subset: tuple | None = None) -> list[tuple]:
+    """:func:`objects_of` the family, restricted to ``config.objects`` and then to ``subset`` (None: all)."""
+    objects = objects_of(config.family)
+    for keep in (config.objects, subset):
+        if keep is not None:
+            objects = [o for o in objects if o[0] in keep]
+    return objects
+
+
+def run_config(config: EvalConfig, **overrides) -> RunConfig:
+    """The runner of every episode: the first seed's (pile, untrained policies) whichever seed runs."""
+    settings = dict(family=config.family, run_dir=config.run_dir, max_switches=config.max_switches,
+                    stage_steps=config.stage_steps, seed=config.seeds[0],
+                    untrained_hidden_sizes=config.untrained_hidden_sizes)
+    settings.update(overrides)
+    return RunConfig(**settings)
+
+
+def run_episode(runner: ChainRunner, config: EvalConfig, key, seed: int, episode: int,
+                scatter: bool) -> tuple[dict, list, list]:
+    """Runs one object's episode (seeded by ``seed, key, episode``): its result and, if ``scatter``, the object's
+    roll-pitch-yaw and score at every tick the scatter transition's feasibility function scored.
+
+    The runner's clock restarts at 0: the simulation's rounding depends on the absolute time, so without this an
+    episode's outcome would depend on the episodes the runner ran before it (and on how seeds are split over
+    workers)."""
+    runner.context.SetTime(0.0)
+    rng = np.random.default_rng([seed, int(key), episode])
+    if config.family == "building_blocks":
+        runner.restore_pile(int(rng.integers(1 << 30)))
+        runner.start_block(int(key), sample_goal(int(key), rng), reset_robot=True)
+    else:
+        runner.start_tool(int(key), rng)
+    stage = runner.tasks.index(SCATTER_STAGE[config.family])
+    rpy, scores = [], []
+
+    def record(r: ChainRunner) -> bool:
+        c = float(r.chain_output("feasibility_scores")[stage])
+        if np.isfinite(c):
+            rpy.append(RollPitchYaw(r.object_pose().rotation()).vector())
+            scores.append(c)
+        return True
+
+    limit = config.time_limit or runner.episode_limit()
+    outcome = runner.run(limit, on_tick=record if scatter else None)
+    result = {"success": bool(outcome.success), "time": outcome.time, "switches": outcome.switches,
+              "last_stage": outcome.last_stage, "position_error": outcome.position_error,
+              "rotation_error": outcome.rotation_error}
+    return result, rpy, scores
 
 
 def sample_goal(block_type: int, rng: np.random.Generator) -> np.ndarray:
@@ -77,81 +148,86 @@ class Evaluation:
             self.records = [json.loads(line) for line in self.records_path.read_text().splitlines() if line]
         elif self.records_path.exists():
             self.records_path.unlink()
+        self._index = {_key(record): record for record in self.records}
         self.progress = progress
         self.scatter_rpy: list[np.ndarray] = []
         self.scatter_c: list[float] = []
         self.notes: list[str] = []
+        self.untrained: list[str] | None = None
+        """The untrained stages of the last runner built (None: no episode ran)."""
+        self._pool = None  # The worker processes (config.workers > 1), started at the first parallel setting.
 
-    def _done(self, key: dict) -> dict | None:
-        for record in self.records:
-            if all(record.get(k) == v for k, v in key.items()):
-                return record
-        return None
+    def close(self) -> None:
+        """Stops the worker processes, if any."""
+        if self._pool is not None:
+            pool, self._pool = self._pool, None
+            pool.close()
 
-    def _runner(self, **overrides) -> ChainRunner:
-        c = self.config
-        settings = dict(family=c.family, run_dir=c.run_dir, max_switches=c.max_switches, stage_steps=c.stage_steps,
-                        seed=c.seeds[0], untrained_hidden_sizes=c.untrained_hidden_sizes)
-        settings.update(overrides)
-        return ChainRunner(RunConfig(**settings))
+    def __enter__(self):
+        return self
 
-    def episodes(self, experiment: str, setting, objects, runner_factory, scatter: bool = False) -> list[dict]:
-        """Runs (or reads back) every episode of one experiment setting; returns their records."""
-        out, runner = [], None
-        for seed in self.config.seeds:
-            for key, _, _ in objects:
-                for episode in range(self.config.episodes):
-                    tag = dict(experiment=experiment, setting=setting, seed=seed, object=key, episode=episode)
-                    record = self._done(tag)
-                    if record is None:
-                        runner = runner or runner_factory()
-                        record = {**tag, **self._episode(runner, key, seed, episode, scatter)}
-                        self.records.append(record)
-                        with self.records_path.open("a") as stream:
-                            stream.write(json.dumps(record) + "\n")
-                    out.append(record)
-                    if self.progress is not None:
-                        self.progress.update(1)
-        return out
+    def __exit__(self, *exc) -> None:
+        self.close()
 
-    def _episode(self, runner: ChainRunner, key, seed: int, episode: int, scatter: bool) -> dict:
-        rng = np.random.default_rng([seed, int(key), episode])
-        if self.config.family == "building_blocks":
-            runner.restore_pile(int(rng.integers(1 << 30)))
-            runner.start_block(int(key), sample_goal(int(key), rng), reset_robot=True)
-        else:
-            runner.start_tool(int(key), rng)
-        stage = runner.tasks.index(SCATTER_STAGE[self.config.family])
+    def _add(self, record: dict) -> None:
+        """Keeps a new episode record and appends it to ``episodes.jsonl`` (only this process writes there)."""
+        self.records.append(record)
+        self._index[_key(record)] = record
+        with self.records_path.open("a") as stream:
+            stream.write(json.dumps(record) + "\n")
+        if self.progress is not None:
+            self.progress.update(1)
 
-        def record(r: ChainRunner) -> bool:
-            c = float(r.chain_output("feasibility_scores")[stage])
-            if np.isfinite(c):
-                self.scatter_rpy.append(RollPitchYaw(r.object_pose().rotation()).vector())
-                self.scatter_c.append(c)
-            return True
+    def episodes(self, experiment: str, setting, objects, overrides: dict | None = None,
+                 scatter: bool = False) -> list[dict]:
+        """Runs (or reads back) every episode of one experiment setting (the runner built with ``overrides`` of
+        :func:`run_config`), in ``config.workers`` processes; returns their records, by seed, object, episode."""
+        overrides = overrides or {}
+        tags = [dict(experiment=experiment, setting=setting, seed=seed, object=key, episode=episode)
+                for seed in self.config.seeds for key, _, _ in objects for episode in range(self.config.episodes)]
+        pending = [tag for tag in tags if _key(tag) not in self._index]
+        if self.progress is not None and len(tags) > len(pending):
+            self.progress.update(len(tags) - len(pending))
+        if pending and self.config.workers > 1 and len({tag["seed"] for tag in pending}) > 1:
+            from seqdex_drake.evaluation.parallel import WorkerPool
 
-        limit = self.config.time_limit or runner.episode_limit()
-        outcome = runner.run(limit, on_tick=record if scatter else None)
-        return {"success": bool(outcome.success), "time": outcome.time, "switches": outcome.switches,
-                "last_stage": outcome.last_stage, "position_error": outcome.position_error,
-                "rotation_error": outcome.rotation_error}
+            points = {}
+
+            def on_episode(record: dict, rpy: list, scores: list) -> None:
+                self._add(record)
+                points[_key(record)] = (rpy, scores)
+
+            self._pool = self._pool or WorkerPool(self.config)
+            try:
+                self.untrained = self._pool.run(pending, overrides, scatter, on_episode)
+            except BaseException:
+                self._pool = None  # A failed run has stopped the workers.
+                raise
+            for tag in pending:  # Scatter points in the single-process order.
+                rpy, scores = points[_key(tag)]
+                self.scatter_rpy += rpy
+                self.scatter_c += scores
+        elif pending:
+            runner = ChainRunner(run_config(self.config, **overrides))
+            self.untrained = list(runner.untrained)
+            for tag in pending:
+                result, rpy, scores = run_episode(runner, self.config, tag["object"], tag["seed"], tag["episode"],
+                                                  scatter)
+                self.scatter_rpy += rpy
+                self.scatter_c += scores
+                self._add({**tag, **result})
+        return [self._index[_key(tag)] for tag in tags]
 
     # ------------------------------------------------------------------------------------ experiments
     def main_table(self) -> list[Path]:
-        objects = objects_of(self.config.family)
-        runner = None
-
-        def factory():
-            nonlocal runner
-            runner = self._runner()
-            return runner
-
-        results = self.episodes("main", self.config.max_switches, objects, factory, scatter=True)
+        objects = selected_objects(self.config)
+        self.untrained = None
+        results = self.episodes("main", self.config.max_switches, objects, scatter=True)
         rates = seed_rates(results, objects)
         columns = [label for _, label, _ in objects] + ["trained", "unseen", "all"]
         row = {label: rates[str(key)] for key, label, _ in objects}
         row.update({g: rates[g] for g in ("trained", "unseen", "all")})
-        untrained = runner.untrained if runner is not None else []
+        untrained = self.untrained or []
         notes = [f"{self.config.episodes} episode(s) per object and seed, seeds {list(self.config.seeds)}; "
                  f"success rate mean ± std over seeds",
                  f"untrained stages: {', '.join(untrained)}" if untrained else "every stage trained"]
@@ -160,15 +236,13 @@ class Evaluation:
                                 [f"ours (max {self.config.max_switches} switches)"], columns, [row], notes))
 
     def _ablation_objects(self):
-        objects = objects_of(self.config.family)
-        keep = self.config.ablation_objects
-        return objects if keep is None else [o for o in objects if o[0] in keep]
+        return selected_objects(self.config, self.config.ablation_objects)
 
     def switching_ablation(self) -> list[Path]:
         objects = self._ablation_objects()
         rows = []
         for k in SWITCH_SETTINGS:
-            results = self.episodes("switching", k, objects, lambda k=k: self._runner(max_switches=k))
+            results = self.episodes("switching", k, objects, dict(max_switches=k))
             rates = seed_rates(results, objects)
             rows.append({g: rates[g] for g in ("trained", "unseen", "all")})
         notes = [f"objects: {', '.join(label for _, label, _ in objects)}; {self.config.episodes} episode(s) per "
@@ -192,7 +266,7 @@ class Evaluation:
                 rows.append({})
                 notes.append(f"H = {h} skipped: missing {', '.join(missing)} (train F with history {h})")
                 continue
-            results = self.episodes("history", h, objects, lambda h=h: self._runner(history=h))
+            results = self.episodes("history", h, objects, dict(history=h))
             rates = seed_rates(results, objects)
             rows.append({g: rates[g] for g in ("trained", "unseen", "all")})
         return list(write_table(self.out / "ablation_history", "History ablation (H steps of F's input)", names,
@@ -215,12 +289,19 @@ def ChainTasks(family: str) -> list[str]:
     return list(LoadChain(family).stages)
 
 
-def total_episodes(config: EvalConfig, history_available: int) -> int:
+def _key(record: dict) -> tuple:
+    return tuple(record[k] for k in ("experiment", "setting", "seed", "object", "episode"))
+
+
+def total_episodes(config: EvalConfig, history_available: int, ablations: bool = True) -> int:
+    """Episodes of the main table (and, if ``ablations``, of the switching and ``history_available`` history
+    settings)."""
     per_setting = len(config.seeds) * config.episodes
-    main = per_setting * len(objects_of(config.family))
-    ablation_objects = len(objects_of(config.family)) if config.ablation_objects is None else \
-        len(config.ablation_objects)
-    return main + per_setting * ablation_objects * (len(SWITCH_SETTINGS) + history_available)
+    total = per_setting * len(selected_objects(config))
+    if ablations:
+        total += per_setting * len(selected_objects(config, config.ablation_objects)) * \
+            (len(SWITCH_SETTINGS) + history_available)
+    return total
 
 
 def history_available(config: EvalConfig) -> int:

@@ -35,9 +35,11 @@ def read_curve(run_dir: str | Path) -> dict[str, np.ndarray]:
             continue
         times = {event.step: event.wall_time for event in events.Scalars("charts/SPS")}
         steps = sorted(times)
-        # The first update's own duration is not in the file: estimated from the rate it logged.
+        # The first update's own duration is not in the file: estimated from the rate it logged, over one batch
+        # (the step gap to the next update) when the file continues a run whose earlier updates are elsewhere.
         first_sps = next(event.value for event in events.Scalars("charts/SPS") if event.step == steps[0])
-        previous = max((step for step in points if step < steps[0]), default=0)
+        batch = steps[1] - steps[0] if len(steps) > 1 else steps[0]
+        previous = max((step for step in points if step < steps[0]), default=max(steps[0] - batch, 0))
         start = times[steps[0]] - (steps[0] - previous) / max(first_sps, 1e-9)
         for step in steps:
             points.setdefault(step, {})["wall_clock_s"] = elapsed_before + (times[step] - start)

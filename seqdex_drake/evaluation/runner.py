@@ -27,13 +27,15 @@ from seqdex_drake.harness import ResolvePackageUrl
 from seqdex_drake.modeling.blocks import BLOCK_SPECS
 from seqdex_drake.modeling.tools import TOOL_SPECS
 from seqdex_drake.observation_layout import pose_vector, quat_multiply
-from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q
+from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, p_PalmHc_Palm
+from seqdex_drake.robots.arm_ik import PalmIK
 from seqdex_drake.scenario import LoadScenario
 from seqdex_drake.scene.objects import SceneObjects
 from seqdex_drake.scene.piles import BOX_CENTER, BOX_INNER_HALF, LoadPiles
-from seqdex_drake.station import MakeStation, RefreshSampledOutputs
+from seqdex_drake.station import MakeControllerPlant, MakeStation, RefreshSampledOutputs
 from seqdex_drake.tasks.blocks_common import BOX_MARGIN
 from seqdex_drake.tasks.insert import YAW_FLIP
+from seqdex_drake.tasks.registry import default_config
 from seqdex_drake.tasks.rewards import quaternion_angle
 from seqdex_drake.tasks.tools_common import TABLE_TOP, TOOL_XY
 
@@ -46,6 +48,11 @@ TOOL_GOAL_LIFT = 0.15
 #: A tool counts as held (the paper: "lifted and held in hand") while its origin is at least this far above its
 #: start height: half the goal's lift, so a tool lying on the table (or dropped onto it) never succeeds.
 TOOL_HELD_LIFT = TOOL_GOAL_LIFT / 2
+
+
+#: Within a stage the tool chain's approach never takes over again (a feasibility switch restarts it): tool Grasp's
+#: script moves the hand more than the default 0.1 m from the tool's top while it grasps.
+TOOL_REENGAGE = float("inf")
 
 
 class ChainRunError(ValueError):
@@ -85,7 +92,7 @@ class Outcome:
     rotation_error: float
 
 
-def _observation_sizes() -> dict[str, int]:
+def observation_sizes() -> dict[str, int]:
     """Each registered task's observation size (the base layout plus its goal or pixel part)."""
     from seqdex_drake.observation_layout import BASE_SIZE, GOAL_SIZE
     from seqdex_drake.tasks.registry import REGISTRY
@@ -123,7 +130,7 @@ class ChainRunner:
             from seqdex_drake.chaining.shipped import ShippedChainError, load_shipped_chain
 
             try:  # Shipped checkpoints: checked (files whole, specs, task configs) before anything is built.
-                self.shipped = load_shipped_chain(config.run_dir, config.family, self.tasks, _observation_sizes())
+                self.shipped = load_shipped_chain(config.run_dir, config.family, self.tasks, observation_sizes())
             except ShippedChainError as error:
                 raise ChainRunError(str(error)) from error
             stages, feasibility, self.missing = self.shipped.stages, self.shipped.feasibility, self.shipped.missing
@@ -140,7 +147,8 @@ class ChainRunner:
                             f"an untrained policy" for i, task in enumerate(self.tasks)]
         params = ChainParams(switcher=SwitcherParams(max_switches=config.max_switches,
                                                      stage_steps=config.stage_steps),
-                             untrained_seed=config.seed, stage_configs=stage_configs)
+                             untrained_seed=config.seed, stage_configs=stage_configs,
+                             reengage_distance=TOOL_REENGAGE if config.family == "tool_positioning" else None)
         if config.untrained_hidden_sizes is not None:
             params.untrained_hidden_sizes = tuple(config.untrained_hidden_sizes)
         builder = DiagramBuilder()
@@ -161,6 +169,10 @@ class ChainRunner:
             builder.Connect(self.controller.GetOutputPort("feasibility_scores"),
                             self.display.GetInputPort("feasibility_scores"))
             builder.Connect(self._completed.get_output_port(), self.display.GetInputPort("completed"))
+        self.stage_configs = list(stage_configs) if stage_configs is not None else \
+            [default_config(task) for task in self.tasks]
+        self._ik = PalmIK(MakeControllerPlant(self.scenario), p_PalmC_Palm=p_PalmHc_Palm)
+        self._R_WP_hold = self._ik.palm_pose(np.asarray(self.scenario.robot.arm_home)).rotation()
         self.diagram = builder.Build()
         self.simulator = Simulator(self.diagram)
         ApplySimulatorConfig(self.scenario.simulator_config, self.simulator)
@@ -211,21 +223,23 @@ class ChainRunner:
         order = np.lexsort((-p[:, 2], ~inside))  # Inside the margin first, then highest.
         return names[int(order[0])]
 
-    def _reset_robot(self) -> None:
+    def _reset_robot(self, arm_q=None) -> None:
         plant, context = self.plant, self.plant_context
-        for name, q in (("franka", self.scenario.robot.arm_home), ("allegro", ALLEGRO_OPEN_Q)):
+        arm_q = self.scenario.robot.arm_home if arm_q is None else arm_q
+        for name, q in (("franka", arm_q), ("allegro", ALLEGRO_OPEN_Q)):
             instance = plant.GetModelInstanceByName(name)
             plant.SetPositions(context, instance, np.asarray(q, dtype=float))
             plant.SetVelocities(context, instance, np.zeros(plant.num_velocities(instance)))
 
-    def _start(self, name: str, goal: np.ndarray, reset_robot: bool) -> None:
+    def _start(self, name: str, goal: np.ndarray, reset_robot: bool, approach_offset=None, arm_q=None) -> None:
         from seqdex_drake.systems.chain_controller import SetChainTarget
 
         if reset_robot:
-            self._reset_robot()
+            self._reset_robot(arm_q)
         self.target, self.goal = name, np.asarray(goal, dtype=float)
         body = self.objects.bodies[self.objects.index(name)]
-        SetChainTarget(self.controller, self.context, int(body.index()), goal=self.goal)
+        SetChainTarget(self.controller, self.context, int(body.index()), goal=self.goal,
+                       approach_offset=approach_offset)
         self.simulator.Initialize()  # Restarts the chain at stage 0 (switcher, policies, router, wrist IK).
         RefreshSampledOutputs(self.plant, self.plant_context)  # Motor torques and contacts of the start state.
         self._start_time = self.context.get_time()
@@ -246,7 +260,10 @@ class ChainRunner:
     def start_tool(self, tool_index: int, rng: np.random.Generator) -> str:
         """Lays tool ``tool_index`` (0 hammer: trained; 1 spatula, 2 spoon: unseen) on the table at a random yaw
         (+-45 deg), the others parked; the goal is its start pose flipped 180 deg about its long axis, lifted.
-        The robot starts at home. Returns the tool's name."""
+        The hand starts where tool Grasp's env starts it (``tasks/tools_common.place_tool_on_table``): open,
+        palm down, its centre ``hover_height`` above the tool's top; the approach there is done, so tool Grasp
+        acts from the first tick, and its scripted grasp starts from the pose it was designed and trained from.
+        Returns the tool's name."""
         names = list(TOOL_SPECS)
         if not 0 <= tool_index < len(names):
             raise ChainRunError(f"unknown tool {tool_index}; valid: {dict(enumerate(names))}")
@@ -258,7 +275,14 @@ class ChainRunner:
         self.objects.set_pose(self.context, name, X_WT, frozen=False)
         X_goal = RigidTransform(X_WT.rotation() @ RotationMatrix.MakeYRotation(np.pi),
                                 X_WT.translation() + [0.0, 0.0, TOOL_GOAL_LIFT])
-        self._start(name, pose_vector(X_goal), reset_robot=True)
+        # The approach (after a restart) hovers the hand over the tool's top, where tool Grasp's env starts it.
+        offset = np.array([0.0, 0.0, height / 2])
+        body = self.objects.bodies[self.objects.index(name)]
+        p_WH = X_WT @ body.default_com() + offset + [0.0, 0.0, self.stage_configs[0].hover_height]
+        arm_q, error = self._ik.solve(np.asarray(self.scenario.robot.arm_home), p_WH, self._R_WP_hold)
+        if error > 0.01:
+            raise ChainRunError(f"the hover pose above {name} ({np.round(p_WH, 3)}) is out of reach ({error:.3f} m)")
+        self._start(name, pose_vector(X_goal), reset_robot=True, approach_offset=offset, arm_q=arm_q)
         return name
 
     def set_completed(self, count: int) -> None:

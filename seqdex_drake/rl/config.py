@@ -131,6 +131,17 @@ class PPOConfig:
         optional overrides."""
         return cls.for_task(name, **{**BUDGET_HYPERPARAMETERS, **overrides})
 
+    @classmethod
+    def for_preset(cls, name: str, preset: str, residual: bool = False, **overrides: Any) -> "PPOConfig":
+        """The config ``seqdex train --preset`` (and ``seqdex pipeline --preset``) builds: ``"paper"``
+        (:meth:`for_task`) or ``"budget"`` (:meth:`for_budget`, plus :data:`RESIDUAL_HYPERPARAMETERS` when the
+        policy is a residual on a scripted base, ``residual``), then ``overrides``."""
+        if preset == "paper":
+            return cls.for_task(name, **overrides)
+        if preset != "budget":
+            raise ValueError(f"unknown PPO preset {preset!r}; presets: paper, budget")
+        return cls.for_budget(name, **{**(RESIDUAL_HYPERPARAMETERS if residual else {}), **overrides})
+
     def to_dict(self) -> dict[str, Any]:
         """Plain-data form (lists for tuples), as stored in checkpoints."""
         return {key: list(value) if isinstance(value, tuple) else value

@@ -79,6 +79,11 @@ class ChainParams:
     inference: str = "numpy"
     """Inference path of the policies and the switcher's F's: "numpy" (float32 snapshots, fast at batch 1) or
     "torch" (the models themselves); overrides ``switcher.inference``."""
+    reengage_distance: float | None = None
+    """If set, the approach's ``OscParams.reengage_distance``: how far (m) the target may get from the hand while a
+    stage runs before the approach takes over again (``inf``: never within a stage; a feasibility switch still
+    restarts it). The tool chain uses ``inf``: tool Grasp's script moves the hand more than 0.1 m from the tool's
+    top on purpose."""
     stage_configs: Sequence | None = None
     """Each stage's :class:`~seqdex_drake.tasks.base.TaskConfig` as its policy was trained (EMA, wrist step,
     episode length, scripted phases; ``seqdex_drake.chaining.shipped`` records them); None: the tasks' defaults."""
@@ -246,14 +251,19 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
                                      residual=config.residual)
         system = _make_policy(i, task, policy, sizes[i], policy_params, params)
         policies.append(builder.AddNamedSystem(f"policy.{i}", system))
-    f_files = [_load_f(i, tasks, entry, sizes) for i, entry in enumerate(feasibility)]
-    switcher_params = dataclasses.replace(params.switcher, inference=params.inference)
+    # A stage that observes its progress: its F reads histories with the progress appended (the switcher adds it).
+    time_steps = tuple(config.episode_length if config.observe_time else 0 for config in configs)
+    f_files = [_load_f(i, tasks, entry, [size + (1 if t else 0) for size, t in zip(sizes, time_steps, strict=True)])
+               for i, entry in enumerate(feasibility)]
+    switcher_params = dataclasses.replace(params.switcher, inference=params.inference, time_steps=time_steps)
     switcher = builder.AddNamedSystem("switcher", FeasibilitySwitcher(
         f_files, sizes, [config.episode_length for config in configs], period, switcher_params))
     router = builder.AddNamedSystem("router", StageRouter(len(tasks), period))
     approach = builder.AddNamedSystem("approach_target", ApproachTarget(plant, [goal for goal, _ in layouts]))
     osc_params = params.osc or OscParams(p_PalmPc_Palm=tuple(p_PalmHc_Palm), hover_height=configs[0].hover_height,
                                          solve_while_handed_over=False)
+    if params.reengage_distance is not None:
+        osc_params = dataclasses.replace(osc_params, reengage_distance=params.reengage_distance)
     controller_plant = MakeControllerPlant(scenario)
     home = np.asarray(scenario.robot.arm_home, dtype=float)
     osc = builder.AddNamedSystem("osc", OperationalSpaceController(
@@ -287,6 +297,8 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
             builder.Connect(assemblers[layouts[i - 1]].GetOutputPort("observation"),
                             switcher.GetInputPort(f"observation.{i - 1}"))
     builder.Connect(osc.GetOutputPort("approach_active"), switcher.GetInputPort("approach_active"))
+    # A feasibility switch (re)starts a stage: the approach brings the hand back above the target first.
+    builder.Connect(switcher.GetOutputPort("switches_used"), osc.GetInputPort("stage_epoch"))
     builder.Connect(switcher.GetOutputPort("active_stage"), router.GetInputPort("stage"))
     builder.Connect(osc.GetOutputPort("approach_active"), router.GetInputPort("approach_active"))
     builder.Connect(switcher.GetOutputPort("active_stage"), approach.GetInputPort("stage"))
@@ -337,13 +349,19 @@ def ConnectChainController(builder: DiagramBuilder, station: Diagram, controller
 
 
 def SetChainTarget(controller: Diagram, root_context: Context, object_body: int, goal: np.ndarray | None = None,
-                   label: int | None = None) -> None:
+                   label: int | None = None, approach_offset=None) -> None:
     """Sets the chain's target in ``root_context`` (the context of the Diagram holding ``controller``, or of
     ``controller`` itself): the target object's body index in the station's plant (e.g.
     ``int(plant.GetBodyByName("block_2").index())``), its goal pose ``[x, y, z, qw, qx, qy, qz]`` (stages
     with a goal: Insert, tool Reorient; also the approach target of those stages) and its render label
-    (default: the body index, which is how the station's plant labels geometry)."""
+    (default: the body index, which is how the station's plant labels geometry). ``approach_offset`` (3, m, world):
+    where the approach aims relative to the object's centre of mass in stages without a goal (default 0)."""
     target = ObservationTarget(object_body=int(object_body), label=int(object_body if label is None else label))
+    if approach_offset is not None:
+        offset = np.asarray(approach_offset, dtype=float)
+        if offset.shape != (3,) or not np.all(np.isfinite(offset)):
+            raise ValueError(f"approach_offset must be a finite 3-vector (m), got {approach_offset}")
+        target.approach_offset = offset
     if goal is None and controller.HasSubsystemNamed("observation.goal"):
         raise ValueError("this chain has a stage with a goal pose (Insert / tool Reorient): pass goal=[x, y, z, qw, "
                          "qx, qy, qz] to SetChainTarget")

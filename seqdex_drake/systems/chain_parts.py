@@ -103,7 +103,7 @@ class StageRouter(LeafSystem):
 
 class ApproachTarget(LeafSystem):
     """The approach controller's target: the goal position for stages with a goal pose, else the target
-    object's centre of mass (world, m).
+    object's centre of mass plus the target's ``approach_offset`` (world, m).
 
     Input ports: ``body_poses`` (the station's), ``stage`` (1). Output port: ``target_position`` (3).
     The chain target is an abstract parameter (:meth:`set_target`), shared with the observation assemblers.
@@ -142,13 +142,14 @@ class ApproachTarget(LeafSystem):
             output.SetFromVector(np.asarray(target.goal, dtype=float)[:3])
             return
         X_WB = self._poses_port.Eval(context)[target.object_body]
-        output.SetFromVector(X_WB @ self._p_BoBcm[target.object_body])
+        output.SetFromVector(X_WB @ self._p_BoBcm[target.object_body] + target.approach_offset)
 
 
 class WristTargetIntegrator(LeafSystem):
     """The arm's PD targets: the OSC's command, or the policy's wrist translation tracked by IK.
 
-    While the policy is in charge the output is ``[q, 0]`` with ``q = ik.step(q_prev, p_WC(q_prev) + w, R_WP)``:
+    While the policy is in charge the output is ``[q, (q - q_prev) / period]`` with
+    ``q = ik.step(q_prev, p_WC(q_prev) + w, R_WP)``:
     one damped least-squares step from the previous arm *target* ``q_prev`` toward the hand centre moved by the
     routed wrist translation ``w``, palm orientation held. Otherwise it passes the OSC's ``franka.desired_state``
     through. The state is the target held during the last control period, so the integration continues from
@@ -165,7 +166,7 @@ class WristTargetIntegrator(LeafSystem):
 
     def __init__(self, ik: PalmIK, R_WP_hold: RotationMatrix, control_period: float):
         super().__init__()
-        self._ik, self._R_WP = ik, R_WP_hold
+        self._ik, self._R_WP, self._period = ik, R_WP_hold, float(control_period)
         self._state_port = self.DeclareVectorInputPort("franka.state", 2 * NUM_ARM)
         self._osc_port = self.DeclareVectorInputPort("osc.desired_state", 2 * NUM_ARM)
         self._wrist_port = self.DeclareVectorInputPort("wrist_translation", 3)
@@ -183,7 +184,10 @@ class WristTargetIntegrator(LeafSystem):
             return np.asarray(self._osc_port.Eval(context), dtype=float)
         q = context.get_discrete_state(self._q_index).get_value()
         p_WC = self._ik.palm_position(q) + self._wrist_port.Eval(context)
-        return np.concatenate((self._ik.step(q, p_WC, self._R_WP), np.zeros(NUM_ARM)))
+        q_next = self._ik.step(q, p_WC, self._R_WP)
+        # The target moves at (q_next - q) / period: fed forward as the desired velocity, as the sub-task env does
+        # (without it the arm's heavily damped PD trails a moving wrist command by centimetres).
+        return np.concatenate((q_next, (q_next - q) / self._period))
 
     def _calc(self, context: Context, output: BasicVector) -> None:
         output.SetFromVector(self._command(context))

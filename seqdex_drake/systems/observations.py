@@ -53,6 +53,9 @@ class ObservationTarget:
     """Goal pose [x, y, z, qw, qx, qy, qz] (Insert, tool Reorient)."""
     label: int = -1
     """Render label of the target object in the label image (Search)."""
+    approach_offset: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
+    """Where the chain's approach aims relative to the object's centre of mass (world frame, m) for stages without
+    a goal pose: the point the sub-task's env hovers the hand over at reset (a tool: its top, ``height / 2`` up)."""
 
 
 class ObservationAssembler(LeafSystem):

@@ -25,7 +25,8 @@ hold and the joint PD behaves as a velocity servo around the planned motion). Bo
 Handover (output ``approach_active``): 1 while the controller is in charge, 0 once the controlled point is
 within ``hover_tolerance`` of the hover point or within ``handover_distance`` of the target itself (the
 policy then moves the hand close to the target without the OSC pulling it back). It turns 1 again only when
-the target is farther than ``reengage_distance`` from the controlled point (a new or moved target). The
+the target is farther than ``reengage_distance`` from the controlled point (a new or moved target), or when the
+optional ``stage_epoch`` input changes (a chain's stage restarts: it starts from the hover point again). The
 controller keeps tracking the hover point either way (unless ``solve_while_handed_over`` is False); a switcher
 downstream chooses whose command to use.
 
@@ -115,7 +116,9 @@ class OperationalSpaceController(LeafSystem):
         self._state_port = self.DeclareVectorInputPort("franka.state", 2 * NUM_ARM)
         self._target_port = self.DeclareVectorInputPort("target_position", 3)
         self._command_index = self.DeclareDiscreteState(np.r_[home, np.zeros(NUM_ARM)])
+        self._epoch_port = self.DeclareVectorInputPort("stage_epoch", 1)  # Optional.
         self._status_index = self.DeclareDiscreteState(np.array([1.0, 0.0]))  # approach_active, qp_failures
+        self._epoch_index = self.DeclareDiscreteState(np.zeros(1))  # The stage_epoch seen last tick.
         self.DeclareStateOutputPort("franka.desired_state", self._command_index)
         self.DeclareVectorOutputPort("approach_active", 1, self._calc_active)
         self.DeclareVectorOutputPort("qp_failures", 1, self._calc_failures)
@@ -219,7 +222,11 @@ class OperationalSpaceController(LeafSystem):
         q, _, _ = self._read_inputs(context)
         discrete_state.set_value(self._command_index, np.r_[q, np.zeros(NUM_ARM)])
         discrete_state.set_value(self._status_index, np.array([1.0, 0.0]))
+        discrete_state.set_value(self._epoch_index, self._epoch(context))
         self._guess[:] = 0.0
+
+    def _epoch(self, context: Context) -> np.ndarray:
+        return self._epoch_port.Eval(context) if self._epoch_port.HasValue(context) else np.zeros(1)
 
     def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
         start = time.perf_counter()
@@ -231,6 +238,10 @@ class OperationalSpaceController(LeafSystem):
         p_WC = X_WPalm @ self._p_PC
         p_WH = self.hover_point(p_WT)
         status = discrete_state.get_value(self._status_index).copy()
+        epoch = self._epoch(context)
+        if epoch[0] != discrete_state.get_value(self._epoch_index)[0]:  # A stage (re)started: approach again.
+            status[0] = 1.0
+            discrete_state.set_value(self._epoch_index, epoch)
         was_active = bool(status[0])
         status[0] = self._next_active(was_active, p_WC, p_WH, p_WT)
         if not (p.solve_while_handed_over or was_active or status[0]):

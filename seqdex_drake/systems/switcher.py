@@ -80,6 +80,11 @@ class SwitcherParams:
     per later stage per tick)."""
     inference: str = "numpy"
     """"numpy": evaluate torch F's from float32 numpy snapshots (fast at batch 1); "torch": the models themselves."""
+    time_steps: tuple[int, ...] | None = None
+    """Per stage, the episode length of a stage whose policy observes its progress (``TaskConfig.observe_time``;
+    0: none). Its F^{i+1} was fitted on env observations that end with that progress, so the switcher appends
+    it to the stage's history rows: ticks in the stage / time_steps while the stage executes (as the env's step
+    count), 1 once another stage executes (the stage is over). None: no stage observes its progress."""
 
 
 class FeasibilitySwitcher(LeafSystem):
@@ -121,6 +126,9 @@ class FeasibilitySwitcher(LeafSystem):
         if params.inference not in ("numpy", "torch"):
             raise ValueError(f"inference must be 'numpy' or 'torch', got {params.inference!r}")
         self._budgets = np.asarray(budgets, dtype=int)
+        self._time_steps = [0] * count if params.time_steps is None else [int(t) for t in params.time_steps]
+        if len(self._time_steps) != count or min(self._time_steps) < 0:
+            raise ValueError(f"time_steps needs one entry >= 0 per stage ({count}), got {params.time_steps}")
         self._history_ports, self._history_index, self._history_shape = {}, {}, {}
         self._bank, self._bank_stages = None, []  # The torch F's as numpy snapshots (inference = "numpy").
         for stage in range(1, count):
@@ -128,18 +136,20 @@ class FeasibilitySwitcher(LeafSystem):
             if f is None:
                 continue
             source, size = stage - 1, int(observation_sizes[stage - 1])
-            model_dim = getattr(f.model, "obs_dim", size)
-            if model_dim != size:
+            timed = 1 if self._time_steps[source] else 0  # The progress entry the switcher appends.
+            model_dim = getattr(f.model, "obs_dim", size + timed)
+            if model_dim != size + timed:
                 raise ValueError(f"the feasibility function of stage {stage} reads {model_dim}-dim histories, but "
-                                 f"stage {source}'s observation has {size}; use the F trained on that stage")
+                                 f"stage {source}'s observation has {size + timed}"
+                                 f"{' (its progress included)' if timed else ''}; use the F trained on that stage")
             if isinstance(f.model, torch.nn.Module):
                 f.model.eval()  # Inference only (no dropout).
             if params.inference == "numpy" and snapshot_feasibility(f.model) is not None:
                 self._bank_stages.append(stage)
             length = int(f.config.input_length)
-            self._history_shape[source] = (length, size)
+            self._history_shape[source] = (length, size + timed)
             self._history_ports[source] = self.DeclareVectorInputPort(f"observation.{source}", size)
-            self._history_index[source] = self.DeclareDiscreteState(np.zeros(1 + length * size))  # [count, rows]
+            self._history_index[source] = self.DeclareDiscreteState(np.zeros(1 + length * (size + timed)))
         self._build_bank()
         self._success_port = self.DeclareVectorInputPort("stage_success", 1)
         self._approach_port = self.DeclareVectorInputPort("approach_active", 1)
@@ -171,13 +181,18 @@ class FeasibilitySwitcher(LeafSystem):
         rows = value[1:].reshape(length, size)
         return rows[length - int(value[0]):]
 
-    def _append(self, context: Context, discrete_state: DiscreteValues, stage: int) -> np.ndarray:
+    def _append(self, context: Context, discrete_state: DiscreteValues, stage: int, executing: int,
+                steps: int) -> np.ndarray:
         length, size = self._history_shape[stage]
         value = context.get_discrete_state(self._history_index[stage]).get_value()
         shifted = np.empty_like(value)  # [count, rows]: drop the oldest row, append the new observation.
         count = shifted[0] = min(int(value[0]) + 1, length)
         shifted[1:-size] = value[1 + size:]
-        shifted[-size:] = self._history_ports[stage].Eval(context)
+        if self._time_steps[stage]:  # Its progress, as the env appends it (steps taken in the stage so far).
+            shifted[-size:-1] = self._history_ports[stage].Eval(context)
+            shifted[-1] = steps / self._time_steps[stage] if stage == executing else 1.0
+        else:
+            shifted[-size:] = self._history_ports[stage].Eval(context)
         discrete_state.set_value(self._history_index[stage], shifted)
         return shifted[1:].reshape(length, size)[length - count:]
 
@@ -251,9 +266,10 @@ class FeasibilitySwitcher(LeafSystem):
             scores[stage] = self.score(stage, histories[stage - 1])
 
     def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
-        histories = {stage: self._append(context, discrete_state, stage) for stage in self._history_index}
         status = context.get_discrete_state(self._status_index).get_value().copy()
         stage, steps, switches = int(status[_STAGE]), int(status[_STEPS]), int(status[_SWITCHES])
+        histories = {source: self._append(context, discrete_state, source, stage, steps)
+                     for source in self._history_index}
         fresh = np.full(self.num_stages, np.nan)  # This tick's scores; NaN where not computed (or no F).
         computed = self.tick_stages(stage)
         self._compute(histories, computed, fresh)
