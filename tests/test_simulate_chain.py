@@ -16,11 +16,15 @@ def simulate(*args, timeout=240):
                           cwd=REPO)
 
 
-@pytest.mark.parametrize("task", ["building_blocks", "tool_positioning"])
-def test_test_run_exits_zero_and_names_untrained_policies(task):
-    result = simulate("--task", task, "--test", "--headless")
+@pytest.mark.parametrize("task, untrained", [("building_blocks", False), ("tool_positioning", False),
+                                              ("tool_positioning", True)])
+def test_test_run_exits_zero_and_says_which_policies_run(task, untrained):
+    result = simulate("--task", task, "--test", "--headless", *(["--untrained"] if untrained else []))
     assert result.returncode == 0, result.stderr[-2000:]
-    assert "untrained policies:" in result.stdout
+    # The repository's shipped checkpoints (checkpoints/<task>) run by default, and the script says so.
+    shipped = (REPO / "checkpoints" / task / "manifest.json").is_file() and not untrained
+    assert ("using the shipped checkpoints" in result.stdout) == shipped
+    assert ("untrained policies:" in result.stdout) != shipped
     assert "state finite: True" in result.stdout
     first = "search" if task == "building_blocks" else "tool_grasp"
     assert "stage 1/" in result.stdout and first in result.stdout

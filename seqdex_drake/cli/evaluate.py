@@ -38,6 +38,7 @@ def add_parser(commands) -> None:
     parser.add_argument("--episodes", type=int, help="episodes per object and seed (default: 10; 1 with --test)")
     parser.add_argument("--max-switches", type=int, default=3, help="switch cap of the main table (default: 3)")
     parser.add_argument("--out", help="output directory (default: <run-dir>/evaluation)")
+    parser.add_argument("--label", default="", help="the main table's row name (default: ours (max N switches))")
     parser.add_argument("--skip-ablations", action="store_true", help="only the main table and the scatter")
     parser.add_argument("--objects", nargs="+", metavar="NAME",
                         help="only these objects: tools hammer, spatula, spoon; block types 1 .. 8 (default: all)")
@@ -83,7 +84,7 @@ def run(args) -> int:
         time_limit=TEST_SECONDS if args.test else None,
         ablation_objects=test_ablation if args.test else None,
         untrained_hidden_sizes=(64, 64) if args.test else None, resume=args.resume, objects=objects,
-        workers=args.workers)
+        workers=args.workers, label=args.label)
     available = 0 if args.skip_ablations else history_available(config)
     total = total_episodes(config, available, ablations=not args.skip_ablations)
     bar = progress_bar(total, f"evaluate {args.task}")

@@ -50,6 +50,8 @@ class EvalConfig:
     resume: bool = False
     objects: tuple | None = None
     """Objects the main table and the ablations run on (tool indices, block types; None: all)."""
+    label: str = ""
+    """The main table's row name (default: "ours (max N switches)")."""
     workers: int = 1
     """Processes running the episodes (seeds round-robin over at most ``len(seeds)`` of them)."""
 
@@ -233,7 +235,8 @@ class Evaluation:
                  f"untrained stages: {', '.join(untrained)}" if untrained else "every stage trained"]
         table = "table1_building_blocks" if self.config.family == "building_blocks" else "table2_tool_positioning"
         return list(write_table(self.out / table, f"Success rate, {self.config.family} (run {self.config.run_dir})",
-                                [f"ours (max {self.config.max_switches} switches)"], columns, [row], notes))
+                                [self.config.label or f"ours (max {self.config.max_switches} switches)"], columns,
+                                [row], notes))
 
     def _ablation_objects(self):
         return selected_objects(self.config, self.config.ablation_objects)
