@@ -90,3 +90,38 @@ def test_worker_errors_reach_the_parent(tmp_path, capsys):
     with pytest.raises(EvaluationWorkerError, match=r"worker 1 \(seeds \[1\]\) died: killed by signal SIGKILL"):
         pool.run(jobs, {}, False, lambda *_: None)
     assert not pool.processes
+
+
+def test_workers_exit_when_the_parent_is_killed(tmp_path):
+    """A parent killed outright (SIGKILL: no cleanup runs) leaves no worker running on."""
+    import subprocess
+    import sys
+    import time
+
+    run_dir = _run_dir(tmp_path)
+    parent = subprocess.Popen([sys.executable, "-m", "seqdex_drake.cli.main", "evaluate", "--task", "tool_positioning",
+                               "--run-dir", str(run_dir), "--test", "--seeds", "2", "--episodes", "50", "--workers",
+                               "2", "--skip-ablations", "--out", str(tmp_path / "out")],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    records = tmp_path / "out" / "episodes.jsonl"
+    deadline = time.monotonic() + 120
+    while not (records.is_file() and records.read_text().count("\n") >= 2):  # The workers are running episodes.
+        assert time.monotonic() < deadline and parent.poll() is None, "no episode was recorded"
+        time.sleep(0.5)
+    workers = [int(pid) for pid in subprocess.run(["pgrep", "-P", str(parent.pid)], capture_output=True,
+                                                  text=True).stdout.split()]
+    assert workers
+    parent.kill()
+    parent.wait()
+    deadline = time.monotonic() + 60
+    while any(os.path.exists(f"/proc/{pid}") and "zombie" not in _status(pid) for pid in workers):
+        assert time.monotonic() < deadline, "workers outlived their parent"
+        time.sleep(0.5)
+
+
+def _status(pid: int) -> str:
+    try:
+        with open(f"/proc/{pid}/status") as status:
+            return status.read().lower()
+    except OSError:
+        return "zombie"

@@ -48,15 +48,18 @@ def _worker(index: int, config, tasks, messages) -> None:
     stages), ``episode`` ((record, rpy, scores)) per job and ``finished``; on a failure ``chain_error`` (the
     message) or ``error`` (the traceback), and exits."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C: the parent stops the workers.
+    parent = mp.parent_process()
     try:
         from seqdex_drake.evaluation.experiments import run_config, run_episode
         from seqdex_drake.evaluation.runner import ChainRunner
 
-        while (task := tasks.get()) is not None:
+        while (task := _next_task(tasks, parent)) is not None:
             overrides, jobs, scatter = task
             runner = ChainRunner(run_config(config, **overrides))
             messages.put(("built", index, list(runner.untrained)))
             for job in jobs:
+                if parent is not None and not parent.is_alive():
+                    return  # The parent was killed (no cleanup ran): nobody is left to report to.
                 result, rpy, scores = run_episode(runner, config, job["object"], job["seed"], job["episode"],
                                                   scatter)
                 messages.put(("episode", index, ({**job, **result}, [[float(a) for a in v] for v in rpy],
@@ -67,6 +70,16 @@ def _worker(index: int, config, tasks, messages) -> None:
         messages.put(("chain_error", index, str(error)))
     except BaseException:  # noqa: BLE001 - every failure goes to the parent, with its traceback.
         messages.put(("error", index, traceback.format_exc()))
+
+
+def _next_task(tasks, parent):
+    """The next task from the parent, or None (stop) once the parent has died without saying so."""
+    while True:
+        try:
+            return tasks.get(timeout=POLL_SECONDS)
+        except queue.Empty:
+            if parent is not None and not parent.is_alive():
+                return None
 
 
 class WorkerPool:
