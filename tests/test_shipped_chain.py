@@ -2,6 +2,7 @@
 (``checkpoints/tool_positioning``, loaded by default by ``scripts/simulate_chain.py``) grasps the hammer and
 re-orients it in hand to within tool Reorient's success tolerance (a physical check of the final pose)."""
 
+import types
 from pathlib import Path
 
 import numpy as np
@@ -41,3 +42,22 @@ def test_the_shipped_chain_runs_the_unseen_tools(tool):
     runner.start_tool(tool, np.random.default_rng([0, tool, 0]))
     outcome = runner.run(2.0)
     assert np.isfinite(outcome.rotation_error) and np.isfinite(outcome.position_error)
+
+
+def test_a_simulator_failure_ends_the_episode_as_a_failure():
+    """A failed step (pydrake raises failed assertions, e.g. a non-finite state, as SystemExit) fails the episode
+    and names the error instead of ending the evaluation; the next episode starts from a clean scene."""
+    runner = ChainRunner(RunConfig(family="tool_positioning", untrained_hidden_sizes=(16,)))
+    runner.start_tool(0, np.random.default_rng(0))
+    simulator = runner.simulator
+
+    def failing(time):
+        raise SystemExit("Failure at multibody_plant.h in SetPositions(): condition 'AllFinite(q)' failed.")
+
+    runner.simulator = types.SimpleNamespace(AdvanceTo=failing)  # The next step fails, as a diverged one does.
+    outcome = runner.run(1.0)
+    assert not outcome.success and "AllFinite" in outcome.simulator_error and np.isnan(outcome.rotation_error)
+    runner.simulator = simulator
+    runner.start_tool(0, np.random.default_rng(0))
+    outcome = runner.run(0.1)
+    assert outcome.simulator_error == "" and np.isfinite(outcome.rotation_error)

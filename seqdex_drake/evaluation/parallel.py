@@ -50,7 +50,7 @@ def _worker(index: int, config, tasks, messages) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C: the parent stops the workers.
     parent = mp.parent_process()
     try:
-        from seqdex_drake.evaluation.experiments import run_config, run_episode
+        from seqdex_drake.evaluation.episodes import run_config, run_episode
         from seqdex_drake.evaluation.runner import ChainRunner
 
         while (task := _next_task(tasks, parent)) is not None:
@@ -104,7 +104,7 @@ class WorkerPool:
     def run(self, jobs: list[dict], overrides: dict, scatter: bool,
             on_episode: Callable[[dict, list, list], None]) -> list[str] | None:
         """Runs the episodes ``jobs`` (tags ``experiment, setting, seed, object, episode``) on runners built with
-        ``overrides`` of :func:`~seqdex_drake.evaluation.experiments.run_config`, calling
+        ``overrides`` of :func:`~seqdex_drake.evaluation.episodes.run_config`, calling
         ``on_episode(record, rpy, scores)`` here as each finishes. Returns the runners' untrained stages (None if
         no job).
 

@@ -90,6 +90,8 @@ class Outcome:
     switches: int
     position_error: float
     rotation_error: float
+    simulator_error: str = ""
+    """Why the simulation failed (a failed episode, as the envs truncate one); empty if it did not."""
 
 
 def observation_sizes() -> dict[str, int]:
@@ -317,10 +319,18 @@ class ChainRunner:
     def run(self, time_limit: float, on_tick: Callable[["ChainRunner"], bool] | None = None,
             stop_on_success: bool = True) -> Outcome:
         """Steps control periods until success (if ``stop_on_success``), ``time_limit`` simulated seconds from
-        the episode's start, or ``on_tick`` returning False (called after every step)."""
+        the episode's start, ``on_tick`` returning False (called after every step), or a simulator failure (a
+        failed outcome naming it)."""
         period = self.scenario.control_period
         while self.context.get_time() - self._start_time < time_limit - 1e-9:
-            self.simulator.AdvanceTo(self.context.get_time() + period)
+            try:
+                self.simulator.AdvanceTo(self.context.get_time() + period)
+            except (RuntimeError, SystemExit) as error:  # A failed contact solve, a non-finite state: pydrake
+                # raises its failed assertions as SystemExit. The episode fails; the next start resets the scene.
+                return Outcome(success=False, time=self.context.get_time() - self._start_time,
+                               last_stage=int(self.chain_output("active_stage")[0]),
+                               switches=int(self.chain_output("switches_used")[0]), position_error=float("nan"),
+                               rotation_error=float("nan"), simulator_error=str(error).splitlines()[0])
             self.objects.update(self.context)
             if on_tick is not None and on_tick(self) is False:
                 break
