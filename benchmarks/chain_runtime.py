@@ -97,13 +97,13 @@ def time_shipped_tick(folder: str, family: str, ticks: int) -> tuple[float, floa
     from seqdex_drake.chaining.feasibility_io import load_feasibility
     from seqdex_drake.chaining.shipped import load_shipped_chain
     from seqdex_drake.evaluation.runner import observation_sizes
+    from seqdex_drake.systems.chain_controller import StagePolicyParams
 
     tasks = list(LoadChain(family).stages)
     chain = load_shipped_chain(folder, family, tasks, observation_sizes())
     sizes = [observation_sizes()[task] for task in tasks]
-    time_steps = tuple(c.episode_length if c.observe_time else 0 for c in chain.configs)
-    params = [PolicyParams(PERIOD, time_steps=t, residual=c.residual, phases=c.phases)
-              for t, c in zip(time_steps, chain.configs, strict=True)]
+    params = [StagePolicyParams(config, PERIOD) for config in chain.configs]
+    time_steps = tuple(p.time_steps for p in params)
     policies = [PolicySystem.untrained(size, seed=i, params=p) if path is None else
                 PolicySystem.from_checkpoint(path, size, p)
                 for i, (path, size, p) in enumerate(zip(chain.policies, sizes, params, strict=True))]

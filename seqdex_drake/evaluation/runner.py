@@ -327,20 +327,19 @@ class ChainRunner:
                 self.simulator.AdvanceTo(self.context.get_time() + period)
             except (RuntimeError, SystemExit) as error:  # A failed contact solve, a non-finite state: pydrake
                 # raises its failed assertions as SystemExit. The episode fails; the next start resets the scene.
-                return Outcome(success=False, time=self.context.get_time() - self._start_time,
-                               last_stage=int(self.chain_output("active_stage")[0]),
-                               switches=int(self.chain_output("switches_used")[0]), position_error=float("nan"),
-                               rotation_error=float("nan"), simulator_error=str(error).splitlines()[0])
+                return self._outcome(False, (float("nan"), float("nan")), str(error).splitlines()[0])
             self.objects.update(self.context)
             if on_tick is not None and on_tick(self) is False:
                 break
             if stop_on_success and self.is_success():
                 break
-        position, rotation = self.errors()
-        return Outcome(success=self.is_success(), time=self.context.get_time() - self._start_time,
+        return self._outcome(self.is_success(), self.errors())
+
+    def _outcome(self, success: bool, errors: tuple[float, float], simulator_error: str = "") -> Outcome:
+        return Outcome(success=success, time=self.context.get_time() - self._start_time,
                        last_stage=int(self.chain_output("active_stage")[0]),
-                       switches=int(self.chain_output("switches_used")[0]), position_error=position,
-                       rotation_error=rotation)
+                       switches=int(self.chain_output("switches_used")[0]), position_error=errors[0],
+                       rotation_error=errors[1], simulator_error=simulator_error)
 
     def episode_limit(self) -> float:
         """A time limit covering every stage's budget once per allowed switch, plus 3 s of approach."""

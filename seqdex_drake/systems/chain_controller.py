@@ -164,6 +164,16 @@ def _make_policy(index: int, task: str, policy, size: int, params: PolicyParams,
                     f"got {type(policy).__name__}")
 
 
+def StagePolicyParams(config, control_period: float, inference: str = "numpy", ema: float | None = None
+                      ) -> PolicyParams:
+    """The :class:`PolicyParams` that run a policy as its stage's env trained it (``config``, a
+    :class:`~seqdex_drake.tasks.base.TaskConfig`): its EMA (``ema`` overrides), wrist step, scripted phases,
+    progress input and residual base."""
+    return PolicyParams(control_period=control_period, ema=config.ema if ema is None else ema,
+                        wrist_step=config.wrist_step, inference=inference, phases=config.phases,
+                        time_steps=config.episode_length if config.observe_time else 0, residual=config.residual)
+
+
 def _load_f(index: int, tasks: list[str], entry, sizes: list[int]) -> FeasibilityFile | None:
     """Stage ``index``'s F, checked against the chain (target task, source task, observation size)."""
     if entry is None:
@@ -244,11 +254,7 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
     sizes = [assemblers[layout].size for layout in layouts]
     policies = []
     for i, ((task, policy), config) in enumerate(zip(stages, configs, strict=True)):
-        ema = config.ema if params.ema is None else params.ema
-        policy_params = PolicyParams(control_period=period, ema=ema, wrist_step=config.wrist_step,
-                                     inference=params.inference, phases=config.phases,
-                                     time_steps=config.episode_length if config.observe_time else 0,
-                                     residual=config.residual)
+        policy_params = StagePolicyParams(config, period, params.inference, params.ema)
         system = _make_policy(i, task, policy, sizes[i], policy_params, params)
         policies.append(builder.AddNamedSystem(f"policy.{i}", system))
     # A stage that observes its progress: its F reads histories with the progress appended (the switcher adds it).
