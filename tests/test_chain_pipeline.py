@@ -80,6 +80,22 @@ def test_feasibility_subcommand_writes_the_history_ablation(runs, capsys):
     assert "first stage" in capsys.readouterr().err
 
 
+def test_feasibility_subcommand_sets_the_architecture(runs, tmp_path, capsys):
+    from seqdex_drake.chaining.feasibility_io import load_feasibility
+
+    out = tmp_path / "slim.pt"
+    assert main(["feasibility", "--run-dir", str(runs / "seqdex"), "--task", "lower", "--layers", "1",
+                 "--d-model", "32", "--heads", "2", "--feedforward", "48", "--out", str(out)]) == 0
+    model = load_feasibility(out).model
+    assert (model.config.layers, model.config.d_model, model.config.heads) == (1, 32, 2)
+    assert len(model.encoder.layers) == 1 and model.encoder.layers[0].linear1.out_features == 48
+    record = json.loads((runs / "seqdex" / "pipeline.json").read_text())["done"]["feasibility_cli_lower_h10"]
+    assert (record["layers"], record["d_model"], record["out"]) == (1, 32, str(out))
+    for bad, message in ((["--heads", "3"], "must divide"), (["--layers", "0"], ">= 1")):
+        assert main(["feasibility", "--run-dir", str(runs / "seqdex"), "--task", "lower", *bad]) == 2
+        assert message in capsys.readouterr().err
+
+
 def test_finetune_subcommand_continues_a_run(runs, capsys):
     assert main(["finetune", "--run-dir", str(runs / "tstar")]) == 0
     assert "chain success" in capsys.readouterr().out

@@ -251,13 +251,15 @@ class Pipeline:
         with np.load(path) as data:
             return {key: data[key] for key in data.files}
 
-    def fit_feasibility(self, index: int, history: int, temporal: bool, path) -> dict:
+    def fit_feasibility(self, index: int, history: int, temporal: bool, path, **architecture) -> dict:
         """Trains F^{index} (attention over ``history`` steps, or the MLP on the last observation) on the saved
-        transitions, sets h from the successful returns, and writes it to ``path``."""
+        transitions, sets h from the successful returns, and writes it to ``path``. ``architecture`` overrides
+        :class:`~seqdex_drake.chaining.feasibility.FeasibilityConfig` fields (``d_model``, ``heads``, ``layers``,
+        ``feedforward``); the outcome records the ones used."""
         data = self.transition_data(index)
         source, target = self.stages[index - 1], self.stages[index]
         config = dataclasses.replace(self.config.feasibility_config(), history=history if temporal else 0,
-                                     temporal=temporal)
+                                     temporal=temporal, **architecture)
         model, metrics = train_feasibility(data["histories"], data["returns"], config)
         if data["successes"].any():
             threshold = feasibility_threshold(data["returns"], data["successes"], self.config.threshold_quantile)
@@ -268,7 +270,8 @@ class Pipeline:
         dim = data["histories"].shape[-1]
         save_feasibility(path, model, config, threshold, observation_spec(source, dim), source_task=source,
                          target_task=target, metrics=metrics)
-        return {"threshold": threshold, "val_r2": float(metrics.get("val_r2", np.nan)), "history": config.history}
+        return {"threshold": threshold, "val_r2": float(metrics.get("val_r2", np.nan)), "history": config.history,
+                **{name: getattr(config, name) for name in ("d_model", "heads", "layers", "feedforward")}}
 
     def transition_bonus(self, phase: str, index: int):
         """The bonus that fine-tunes pi_{index-1} toward states stage ``index`` succeeds from (None: Policy-Seq)."""

@@ -3,6 +3,7 @@
     seqdex pipeline --chain handover --method seqdex [--stage-steps N] [--finetune-steps N] [--iterations M]
                     [--preset paper|budget] [--init TASK=CHECKPOINT ...] [--num-envs N]
     seqdex feasibility --run-dir RUN --task lower [--history H] [--no-temporal] [--recollect [--intermediate N]]
+                       [--d-model W] [--heads N] [--layers L] [--feedforward W]
     seqdex finetune --run-dir RUN
 
 ``pipeline`` runs a whole method (:mod:`seqdex_drake.chaining.pipeline`): forward initialization, backward
@@ -28,6 +29,7 @@ METHOD_HELP = ("seqdex (ours), seqdex_no_temporal (F without history), policy_se
 def add_parsers(commands) -> None:
     """Adds ``pipeline``, ``feasibility`` and ``finetune`` to the argparse subparsers object ``commands``."""
     from seqdex_drake.chaining.chain import ChainNames
+    from seqdex_drake.chaining.feasibility import FeasibilityConfig
     from seqdex_drake.chaining.pipeline import METHODS, PRESETS
 
     pipeline = commands.add_parser("pipeline", help="run a whole chaining method (forward, backward, evaluation)",
@@ -68,6 +70,12 @@ def add_parsers(commands) -> None:
     feasibility.add_argument("--intermediate", type=int, default=0, metavar="N",
                              help="with --recollect: N more rollouts that hand over after a random number of the "
                              "previous stage's steps, so F also knows the states the switcher scores mid-stage")
+    defaults = FeasibilityConfig()
+    for flag, name, what in (("--d-model", "d_model", "embedding and attention width"),
+                             ("--heads", "heads", "attention heads"), ("--layers", "layers", "encoder layers"),
+                             ("--feedforward", "feedforward", "encoder feed-forward width")):
+        feasibility.add_argument(flag, type=int, default=getattr(defaults, name),
+                                 help=f"the attention F's {what} (default {getattr(defaults, name)})")
     _common(feasibility, "reuse the run's saved transitions (always done when present)", run_dir_required=True)
 
     finetune = commands.add_parser("finetune", help="backward fine-tuning of a run whose forward phase is done",
@@ -168,6 +176,8 @@ def _open(args):
 
 
 def run_feasibility(args) -> int:
+    from seqdex_drake.chaining.feasibility import FeasibilityConfig
+
     pipeline = _open(args)
     if args.task not in pipeline.stages:
         raise CliError(f"{args.task} is not a stage of the run's chain ({' -> '.join(pipeline.stages)})")
@@ -181,6 +191,13 @@ def run_feasibility(args) -> int:
             raise CliError(f"{pipeline.run.policy(task)} is missing; run seqdex pipeline on {args.run_dir} first")
     if args.intermediate < 0 or (args.intermediate and not args.recollect):
         raise CliError("--intermediate takes a count >= 0 and needs --recollect")
+    architecture = {name: getattr(args, name) for name in ("d_model", "heads", "layers", "feedforward")}
+    if min(architecture.values()) < 1:
+        raise CliError(f"--d-model, --heads, --layers and --feedforward must be >= 1, got {architecture}")
+    try:
+        FeasibilityConfig(**architecture)
+    except ValueError as error:
+        raise CliError(f"bad F architecture: {error}") from error
     try:
         if args.recollect:  # Its own phase name: an interrupted recollection resumes, a finished one is kept.
             phase = f"transitions_recollect_{args.task}_i{args.intermediate}"
@@ -191,7 +208,7 @@ def run_feasibility(args) -> int:
         default = pipeline.run.feasibility(args.task)
         out = Path(args.out) if args.out else (default if temporal and args.history == 10 else
                                                 default.with_name(f"{args.task}_h{args.history if temporal else 0}.pt"))
-        outcome = pipeline.fit_feasibility(index, args.history, temporal, out)
+        outcome = pipeline.fit_feasibility(index, args.history, temporal, out, **architecture)
         # On the record, so what a shipped F was fitted on is known (seqdex ship copies pipeline.json's summary).
         pipeline.run.finish(f"feasibility_cli_{args.task}_h{outcome['history']}",
                             dict(outcome, out=str(out), recollected=args.recollect, intermediate=args.intermediate))
