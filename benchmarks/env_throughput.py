@@ -46,6 +46,11 @@ slower env's step on perfectly parallel cores (episodes differ in cost, so one e
 loop in 2 processes at once against 1 (summed rates), no env code and no pipes: what the machine itself lets two
 simulations gain (shared caches and memory bandwidth, clock boost).
 
+Search against Grasp (``search_env_over_grasp_env``, goal >= 0.25): both envs in this process, stepped with
+uniform random actions (an untrained policy digging in the pile: the training workload, where the hand wakes
+blocks) and interleaved in chunks of 5 Search steps and a matched number of Grasp steps, so that the machine's
+drift weighs on both alike; ``--search-steps`` Search steps per repeat.
+
 The last line is one JSON object; ``env_over_raw_min`` is the smallest env/raw ratio over the paper's six
 sub-tasks measured (goal >= 0.90; ``env_over_raw_min_all_tasks`` includes the hand-over chain's Reach and Lower,
 whose ~2 ms of physics per step make any Python step code weigh more), ``two_worker_speedup`` the 2-worker
@@ -55,6 +60,7 @@ over the 1-worker rate for grasp, on 2 x ``--envs-per-worker`` envs, with groupe
 whose env could not be built or stepped to its error (it is left out of the minimum).
 
     python benchmarks/env_throughput.py [--seconds 3] [--repeats 3] [--min-steps 40] [--vector-steps 300]
+                                        [--search-steps 60]
                                         [--envs-per-worker 8]
                                         [--all] [--test]
 """
@@ -128,6 +134,45 @@ def _time_raw(env, state, steps: int, replay: list | None = None, tactile: bool 
     exact = replay is not None and np.array_equal(env.plant.GetPositionsAndVelocities(env.plant_context),
                                                   replay[-1])
     return elapsed, exact
+
+
+def search_over_grasp(search_steps: int, repeats: int, chunk: int = 5) -> dict:
+    """Search and Grasp env steps/s in this process, interleaved in chunks (``chunk`` Search steps, then as many
+    Grasp steps as take about as long), with uniform random actions from seed 0, as an untrained policy digs:
+    the training workload. Episodes run to their end and reset (seeds 0, 1, ...), both envs alike. Summed over
+    ``repeats`` passes of ``search_steps`` Search steps; ``search_env_over_grasp_env`` is the rate ratio."""
+    envs = {name: make_env(name) for name in ("search", "grasp")}
+    rngs = {name: np.random.default_rng(0) for name in envs}
+    episodes = dict.fromkeys(envs, 0)
+    for env in envs.values():
+        env.reset(seed=0)
+    steps, elapsed = dict.fromkeys(envs, 0), dict.fromkeys(envs, 0.0)
+
+    def run(name: str, count: int) -> None:
+        env = envs[name]
+        start = time.perf_counter()
+        for _ in range(count):
+            _, _, terminated, truncated, _ = env.step(rngs[name].uniform(-1.0, 1.0, env.action_space.shape))
+            if terminated or truncated:
+                episodes[name] += 1
+                env.reset(seed=episodes[name])
+        elapsed[name] += time.perf_counter() - start
+        steps[name] += count
+
+    run("grasp", 2 * chunk)  # Warm-up of both (first-call costs), off the books.
+    run("search", 1)
+    steps, elapsed = dict.fromkeys(envs, 0), dict.fromkeys(envs, 0.0)
+    grasp_chunk = 4 * chunk  # Re-sized after the first chunk so that both sides of a chunk take about as long.
+    for _ in range(repeats):
+        for _ in range(max(1, search_steps // chunk)):
+            run("search", chunk)
+            run("grasp", grasp_chunk)
+            grasp_chunk = max(chunk, int(round(chunk * steps["grasp"] / elapsed["grasp"] * elapsed["search"]
+                                               / steps["search"])))
+    rates = {name: steps[name] / elapsed[name] for name in envs}
+    return {"search_env_steps_per_s": round(rates["search"], 2), "grasp_env_steps_per_s": round(rates["grasp"], 2),
+            "search_steps": steps["search"], "grasp_steps": steps["grasp"],
+            "search_env_over_grasp_env": round(rates["search"] / rates["grasp"], 4)}
 
 
 def single_process(name: str, seconds: float, repeats: int, min_steps: int = 0) -> dict:
@@ -347,10 +392,12 @@ def main(argv=None):
     parser.add_argument("--envs-per-worker", type=int, default=8,
                         help="envs each worker hosts in the batched vector layout (1 and this are measured); "
                              "default 8: PPO's default 16 envs on 2 workers")
+    parser.add_argument("--search-steps", type=int, default=60,
+                        help="Search env steps per repeat of the interleaved Search / Grasp measurement")
     parser.add_argument("--test", action="store_true", help="a tiny run (a few steps per measurement)")
     args = parser.parse_args(argv)
     if args.test:
-        args.seconds, args.repeats, args.vector_steps, args.min_steps = 0.05, 1, 5, 1
+        args.seconds, args.repeats, args.vector_steps, args.min_steps, args.search_steps = 0.05, 1, 5, 1, 5
     names = args.tasks or task_names()
     load_before = os.getloadavg()
     single, failed = {}, {}
@@ -362,6 +409,8 @@ def main(argv=None):
             print(f"{name:14s} FAILED {failed[name]}", flush=True)
             continue
         print(f"{name:14s} single process {single[name]}", flush=True)
+    ratio = search_over_grasp(args.search_steps, args.repeats)
+    print(f"search / grasp env steps (random actions, interleaved): {ratio}", flush=True)
     vector_names = list(single) if args.all else ["grasp"]
     vectors = {}
     for name in vector_names:
@@ -377,6 +426,7 @@ def main(argv=None):
         "two_worker_speedup_lockstep": _speedup(vectors.get("grasp", next(iter(vectors.values()))),
                                                 args.envs_per_worker, grouped=False),
         "envs_per_worker": args.envs_per_worker,
+        "search_env_over_grasp_env": ratio["search_env_over_grasp_env"], "search_over_grasp": ratio,
         "single_process": single, "vector": vectors, "failed": failed, "cpu_count": os.cpu_count(),
         "load_average_1min_before_after": [round(load_before[0], 2), round(os.getloadavg()[0], 2)],
         "args": vars(args),

@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # The Tool Positioning evaluation of results/tool_positioning.md, on the shipped checkpoints: the chain with and
 # without the feasibility switcher, Policy-Seq on the same budget, tool Grasp standalone, and the unseen tools.
-# Hammer rows: 34 episodes x 3 seeds (102 episodes); the unseen tools (spatula, spoon), whose failed episodes run
-# the switcher's whole 21 s budget with slow contact-rich physics, 8 x 3 each. One worker process per seed (the
-# records do not depend on the split). About 50 minutes on two cores. Outputs under results/tool_positioning/.
+# Every row: 34 episodes x 3 seeds (102 episodes per tool). One worker process per seed (the records do not depend
+# on the split). About 2.5 hours on two cores (a failed unseen-tool episode runs the switcher's whole 21 s budget
+# with slow contact-rich physics, ~30 s of wall-clock each). Outputs under results/tool_positioning/.
 #
 #   bash scripts/evaluate_tool_positioning.sh [--resume]
 set -euo pipefail
@@ -28,5 +28,5 @@ for seed in 0 1000 2000; do
         --preset budget --episodes 100 --seed "$seed" --out "$OUT/tool_grasp_shipped_seed$seed.json"
 done
 # The unseen tools with the switcher.
-"$SEQDEX" evaluate "${COMMON[@]}" --episodes 8 --objects spatula spoon --run-dir checkpoints/tool_positioning \
+"$SEQDEX" evaluate "${COMMON[@]}" --episodes 34 --objects spatula spoon --run-dir checkpoints/tool_positioning \
     --max-switches 3 --out "$OUT/eval_switcher_unseen" --label "ours (switcher, at most 3 switches)"

@@ -13,7 +13,7 @@ import numpy as np
 
 from seqdex_drake import LoadScenario
 from seqdex_drake.harness import MakeStationHarness, ResolvePackageUrl
-from seqdex_drake.scene.piles import InsideBox, PileSettings, SavePiles, SettlePile
+from seqdex_drake.scene.piles import SETTLE_TIME_STEP, InsideBox, PileSettings, SavePiles, SettlePile
 
 
 def main(argv=None) -> int:
@@ -22,11 +22,17 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="seed of the first pile (pile k uses seed + k)")
     parser.add_argument("--scenario", default="building_blocks/search")
     parser.add_argument("--out", default=None, help="output file (default: the scenario's pile_file)")
+    parser.add_argument("--time-step", type=float, default=SETTLE_TIME_STEP,
+                        help=f"plant step of the settling (default {SETTLE_TIME_STEP} s: finer than Search's own "
+                        "1/240 s, so the cached piles rest as they did before Search's step grew)")
     parser.add_argument("--test", action="store_true", help="one pile, written to --out (required)")
     args = parser.parse_args(argv)
     if args.test and args.out is None:
         parser.error("--test needs --out so the shipped cache is not overwritten")
-    scenario = LoadScenario(args.scenario, scenario_text="{object_layout: parked, freeze: {enabled: false}}")
+    if not 0 < args.time_step <= 0.01:
+        parser.error(f"--time-step must be in (0, 0.01] s, got {args.time_step}")
+    scenario = LoadScenario(args.scenario, scenario_text="{object_layout: parked, freeze: {enabled: false}, "
+                            f"plant_config: {{time_step: {args.time_step!r}}}}}")
     out = args.out or ResolvePackageUrl(scenario.pile_file)
     harness = MakeStationHarness(scenario)
     piles, seed = [], args.seed

@@ -5,9 +5,11 @@ import pytest
 
 from seqdex_drake import LoadScenario
 from seqdex_drake.harness import MakeStationHarness, ResolvePackageUrl
-from seqdex_drake.scene.piles import InsideBox, LoadPiles, PileSettings, SavePiles, SettlePile
+from seqdex_drake.scene.piles import SETTLE_TIME_STEP, InsideBox, LoadPiles, PileSettings, SavePiles, SettlePile
 
+SETTLING = f"plant_config: {{time_step: {SETTLE_TIME_STEP}}}"  # The step the cached piles were settled at.
 SMALL_PILE = """{
+  """ + SETTLING + """,
   object_layout: parked,
   freeze: {enabled: false},
   cameras: {},
@@ -25,7 +27,7 @@ def max_penetration(harness) -> float:
 
 
 def test_cached_pile_rests_inside_the_box():
-    scenario = LoadScenario("building_blocks/search", scenario_text="{freeze: {enabled: false}}")
+    scenario = LoadScenario("building_blocks/search", scenario_text=f"{{freeze: {{enabled: false}}, {SETTLING}}}")
     harness = MakeStationHarness(scenario, pile_index=0)
     start = harness.objects.positions(harness.context)
     assert InsideBox(start).all()
@@ -71,3 +73,44 @@ def test_shipped_cache_matches_the_search_scenario():
     piles = LoadPiles(ResolvePackageUrl(scenario.pile_file), harness.objects.names)
     assert piles.shape[1:] == (72, 7) and len(piles) >= 4
     assert all(InsideBox(p).all() for p in piles)
+
+
+def test_search_pile_stays_put_for_ten_seconds_at_the_search_step():
+    """The Search scene as an episode starts it (blocks away from the target frozen), at its 1/240 s plant step
+    with the robot away: after 10 s nothing crept or left the box, and every block is frozen again."""
+    scenario = LoadScenario("building_blocks/search")
+    assert scenario.plant_config.time_step > 0.004  # The step this test is about (the scenario's).
+    harness = MakeStationHarness(scenario, pile_index=0)
+    q = harness.objects.positions(harness.context)
+    target = int(np.argmin(np.linalg.norm(q[:, 4:6] - [0.25, 0.19], axis=1)))
+    harness.objects.freeze_far_from(harness.context, q[target, 4:])
+    assert 0 < (~harness.objects.frozen_mask(harness.context)).sum() < 10
+    start = harness.objects.positions(harness.context)
+    harness.step(600)
+    end = harness.objects.positions(harness.context)
+    moved = np.linalg.norm(end[:, 4:] - start[:, 4:], axis=1)
+    assert InsideBox(end).all(), "a block left the box"
+    assert moved.max() < 0.01 and np.percentile(moved, 95) < 5e-4, f"the pile crept: {np.sort(moved)[-5:]} m"
+    assert harness.objects.frozen_mask(harness.context).all(), "resting blocks did not freeze again"
+    assert max_penetration(harness) < 0.002
+
+
+def test_a_digging_hand_does_not_blow_up_the_pile():
+    """Random finger actions in the Search env (an untrained policy digs like this): blocks stay in the box, move
+    at hand speeds and do not sink into each other or the hand by more than a couple of centimetres."""
+    from seqdex_drake.tasks.registry import make_env
+
+    env = make_env("search")
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    station_context = env.station.GetMyContextFromRoot(env.context)
+    deepest, fastest = 0.0, 0.0
+    for _ in range(40):
+        env.step(rng.uniform(-1, 1, env.action_space.shape))
+        pairs = env.station.GetOutputPort("query_object").Eval(station_context).ComputePointPairPenetration()
+        deepest = max([deepest] + [p.depth for p in pairs])
+        fastest = max([fastest] + [np.linalg.norm(env.plant.EvalBodySpatialVelocityInWorld(
+            env.plant_context, body).translational()) for body in env.objects.bodies])
+    assert InsideBox(env.objects.positions(env.context)).all()
+    assert deepest < 0.025, f"penetration {deepest:.4f} m"
+    assert fastest < 2.0, f"a block flew at {fastest:.2f} m/s"

@@ -27,6 +27,9 @@ PILE_FILE_VERSION = 1
 BOX_CENTER = np.array([0.25, 0.19, 0.6])
 BOX_INNER_HALF = np.array([0.30, 0.208])
 BOX_WALL_HEIGHT = 0.165
+#: Plant step (s) the cached piles are settled at (``scripts/generate_piles.py``): finer than the Search scene's
+#: own 1/240 s step, so that the piles rest as quasi-statically as an all-dynamic pile can under point contact.
+SETTLE_TIME_STEP = 0.002
 
 
 @dataclasses.dataclass
