@@ -66,6 +66,7 @@ whose env could not be built or stepped to its error (it is left out of the mini
 """
 
 import argparse
+import dataclasses
 import json
 import multiprocessing
 import os
@@ -75,7 +76,7 @@ import numpy as np
 
 from seqdex_drake.envs.vector import ProcessVectorEnv
 from seqdex_drake.rl.config import PAPER_TASK_HYPERPARAMETERS, PPOConfig
-from seqdex_drake.tasks.registry import PAPER_TASKS, make_env, task_names
+from seqdex_drake.tasks.registry import PAPER_TASKS, default_config, make_env, task_names
 
 WARMUP_STEPS = 5
 CHUNK_STEPS = 10
@@ -136,12 +137,14 @@ def _time_raw(env, state, steps: int, replay: list | None = None, tactile: bool 
     return elapsed, exact
 
 
-def search_over_grasp(search_steps: int, repeats: int, chunk: int = 5) -> dict:
+def search_over_grasp(search_steps: int, repeats: int, chunk: int = 5, search_overrides: str = "") -> dict:
     """Search and Grasp env steps/s in this process, interleaved in chunks (``chunk`` Search steps, then as many
     Grasp steps as take about as long), with uniform random actions from seed 0, as an untrained policy digs:
     the training workload. Episodes run to their end and reset (seeds 0, 1, ...), both envs alike. Summed over
-    ``repeats`` passes of ``search_steps`` Search steps; ``search_env_over_grasp_env`` is the rate ratio."""
-    envs = {name: make_env(name) for name in ("search", "grasp")}
+    ``repeats`` passes of ``search_steps`` Search steps; ``search_env_over_grasp_env`` is the rate ratio.
+    ``search_overrides``: YAML over the Search scenario (``TaskConfig.scenario_overrides``), to measure settings."""
+    search = dataclasses.replace(default_config("search"), scenario_overrides=search_overrides)
+    envs = {"search": make_env("search", search), "grasp": make_env("grasp")}
     rngs = {name: np.random.default_rng(0) for name in envs}
     episodes = dict.fromkeys(envs, 0)
     for env in envs.values():

@@ -39,6 +39,9 @@ def test_env_throughput_reports_the_ratios_and_their_references():
     assert set(vector["other_processes_busy_cores"]) == {"1x2", "2x1", "1x4", "2x2", "grouped"}
     assert 1.0 <= vector["sync_bound_speedup"] <= 2.0  # max(t0, t1) lies between the mean and the sum
     assert vector["raw_two_process_speedup"] > 0
+    ratio = result["search_over_grasp"]  # Search against Grasp, interleaved, in the same run.
+    assert result["search_env_over_grasp_env"] == ratio["search_env_over_grasp_env"] > 0
+    assert ratio["search_steps"] > 0 and ratio["grasp_steps"] > 0
 
 
 def test_chain_runtime_reports_the_tick_its_memory_floor_and_the_real_time_factor():

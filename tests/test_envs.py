@@ -174,3 +174,14 @@ def test_orient_success_is_the_block_standing_upright():
         env.plant.SetFreeBodyPose(env.plant_context, env.object_body(), RigidTransform(RollPitchYaw(roll, 0, 0), p_WB))
         assert env.object_pose().rotation().matrix()[2, 2] == pytest.approx(np.cos(roll))
         assert env.task.is_success(env) is expected, roll
+
+
+def test_scenario_overrides_change_the_envs_physics():
+    import dataclasses
+
+    config = dataclasses.replace(default_config("grasp"), scenario_overrides="{plant_config: {time_step: 0.001}}")
+    env = make_env("grasp", config)
+    assert env.scenario.plant_config.time_step == 0.001 and env.plant.time_step() == 0.001
+    assert env.scenario.plant_config.discrete_contact_approximation == "lagged"  # The rest as the scenario has it.
+    with pytest.raises(Exception, match="bogus"):
+        make_env("grasp", dataclasses.replace(config, scenario_overrides="{bogus: 1}"))

@@ -67,6 +67,18 @@ def test_missing_truncated_and_foreign_files_are_refused_naming_them(shipped, tm
         load_shipped_chain(shipped, "building_blocks", ["search", "orient", "grasp", "insert"], SIZES)
 
 
+def test_a_field_added_to_the_task_config_since_shipping_is_tolerated_at_its_default(shipped):
+    path = shipped / "manifest.json"
+    manifest = json.loads(path.read_text())
+    del manifest["stages"]["tool_grasp"]["task_config"]["scenario_overrides"]  # As a manifest shipped before it.
+    path.write_text(json.dumps(manifest))
+    assert load_shipped_chain(shipped, "tool_positioning", TASKS, SIZES).policies[0] is not None
+    manifest["stages"]["tool_grasp"]["task_config"]["no_such_field"] = 1  # A field this code does not know.
+    path.write_text(json.dumps(manifest))
+    with pytest.raises(ShippedChainError, match="differs from this code's"):
+        load_shipped_chain(shipped, "tool_positioning", TASKS, SIZES)
+
+
 def test_a_stale_task_config_or_version_is_refused(shipped):
     path = shipped / "manifest.json"
     manifest = json.loads(path.read_text())

@@ -61,3 +61,21 @@ def test_a_simulator_failure_ends_the_episode_as_a_failure():
     runner.start_tool(0, np.random.default_rng(0))
     outcome = runner.run(0.1)
     assert outcome.simulator_error == "" and np.isfinite(outcome.rotation_error)
+
+
+def test_a_diverged_but_finite_state_ends_the_episode_as_a_failure():
+    """A blown-up state that is still finite (Drake steps on) fails the episode with a message, instead of the
+    wake check's arithmetic overflowing and ending the evaluation."""
+    runner = ChainRunner(RunConfig(family="tool_positioning", untrained_hidden_sizes=(16,)))
+    runner.start_tool(0, np.random.default_rng(0))
+    simulator = runner.simulator
+
+    def diverging(time):
+        simulator.AdvanceTo(time)
+        q = runner.plant.GetPositions(runner.plant_context)
+        q[-3:] = 1e160  # The last free body's position, as a diverged spoon episode left it.
+        runner.plant.SetPositions(runner.plant_context, q)
+
+    runner.simulator = types.SimpleNamespace(AdvanceTo=diverging)
+    outcome = runner.run(1.0)
+    assert not outcome.success and "diverged" in outcome.simulator_error and np.isnan(outcome.position_error)

@@ -129,7 +129,7 @@ def load_shipped_chain(folder: str | Path, chain: str, tasks: list[str], observa
                        ) -> ShippedChain:
     """Checks the shipped folder for ``chain`` (stages ``tasks``; ``observation_sizes`` per task) and returns its
     files and stage configs. A stage the manifest does not list runs untrained (``missing``)."""
-    from seqdex_drake.cli import config_dict
+    from seqdex_drake.cli import config_dict, same_task_config
     from seqdex_drake.rl.checkpoint import CheckpointError, load_checkpoint
     from seqdex_drake.tasks.registry import default_config, observation_spec
 
@@ -169,7 +169,7 @@ def load_shipped_chain(folder: str | Path, chain: str, tasks: list[str], observa
             if spec != expected:
                 raise ShippedChainError(f"{file}: {where} records the observation spec {spec}, the {task} stage "
                                         f"reads {expected}: another task's policy or another observation layout")
-        if config_dict(config) != entry["task_config"]:
+        if not same_task_config(config_dict(config), entry["task_config"]):
             raise ShippedChainError(f"{file} was trained with a {task} task config (preset {entry['preset']}) that "
                                     f"differs from this code's; use the code of commit {manifest.get('commit')}")
         policies.append(file)

@@ -106,6 +106,18 @@ def config_dict(config) -> dict:
     return json.loads(json.dumps(dataclasses.asdict(config), default=_plain))
 
 
+def same_task_config(current: dict, recorded: dict) -> bool:
+    """Whether a recorded task config (``config_dict`` of a ``TaskConfig``, in a run record or a manifest) is
+    ``current``: equal field by field, where a field the record lacks (one added to ``TaskConfig`` since it was
+    written) counts as equal only if ``current`` leaves it at its default."""
+    from seqdex_drake.tasks.base import TaskConfig
+
+    if set(recorded) - set(current):
+        return False
+    defaults = config_dict(TaskConfig())
+    return all(current[key] == (recorded[key] if key in recorded else defaults.get(key)) for key in current)
+
+
 def _plain(value):
     if hasattr(value, "tolist"):
         return value.tolist()

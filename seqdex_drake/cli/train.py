@@ -37,6 +37,7 @@ from seqdex_drake.cli import (
     check_seed,
     config_dict,
     observation_spec,
+    same_task_config,
     task_config,
 )
 
@@ -162,7 +163,7 @@ def _saved_run(args, run_dir: Path, config) -> dict:
                        f"{', '.join(RECORD_KEYS)}); restore it, or start afresh in another --run-dir")
     if record["task"] != args.task:
         raise CliError(f"--resume: {run_dir} trains {record['task']}, not {args.task}")
-    if record["task_config"] != config_dict(config):
+    if not same_task_config(config_dict(config), record["task_config"]):
         raise CliError(f"--resume: the task config differs from the one {run_dir} was started with (was it "
                        f"started {'without' if args.test else 'with'} --test?)")
     if args.initial_states is not None and args.initial_states != record["initial_states"]:
@@ -207,7 +208,7 @@ def _write_record(run_dir: Path, record: dict, config) -> None:
     from seqdex_drake.scenario import DumpScenario, LoadScenario, ScenarioError
 
     try:
-        scenario = DumpScenario(LoadScenario(config.scenario))
+        scenario = DumpScenario(LoadScenario(config.scenario, scenario_text=config.scenario_overrides or "{}"))
     except ScenarioError as error:
         raise CliError(str(error)) from error
     atomic_write(run_dir / "config.json", lambda file: file.write((json.dumps(record, indent=2) + "\n").encode()))

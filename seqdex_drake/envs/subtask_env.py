@@ -65,7 +65,7 @@ class SubtaskEnv(gym.Env):
     def __init__(self, task: Task, meshcat=None):
         self.task = task
         self.config: TaskConfig = task.config
-        self.scenario = LoadScenario(self.config.scenario)
+        self.scenario = LoadScenario(self.config.scenario, scenario_text=self.config.scenario_overrides or "{}")
         builder = DiagramBuilder()
         station = builder.AddNamedSystem("station", MakeStation(self.scenario, meshcat=meshcat))
         self.plant = station.GetSubsystemByName("plant")

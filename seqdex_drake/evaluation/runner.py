@@ -48,6 +48,8 @@ TOOL_GOAL_LIFT = 0.15
 #: A tool counts as held (the paper: "lifted and held in hand") while its origin is at least this far above its
 #: start height: half the goal's lift, so a tool lying on the table (or dropped onto it) never succeeds.
 TOOL_HELD_LIFT = TOOL_GOAL_LIFT / 2
+#: A plant position (m, quaternion) or velocity (m/s, rad/s) this large means the simulation has diverged.
+DIVERGED = 1e3
 
 
 #: Within a stage the tool chain's approach never takes over again (a feasibility switch restarts it): tool Grasp's
@@ -328,6 +330,12 @@ class ChainRunner:
             except (RuntimeError, SystemExit) as error:  # A failed contact solve, a non-finite state: pydrake
                 # raises its failed assertions as SystemExit. The episode fails; the next start resets the scene.
                 return self._outcome(False, (float("nan"), float("nan")), str(error).splitlines()[0])
+            state = self.plant.GetPositionsAndVelocities(self.plant_context)
+            if not np.all(np.abs(state) < DIVERGED):  # Also catches NaN. Blown-up but finite states would
+                # otherwise overflow the wake check's float arithmetic.
+                return self._outcome(False, (float("nan"), float("nan")),
+                                     f"the simulation diverged at t = {self.context.get_time():.3f} s (a plant "
+                                     f"position or velocity beyond {DIVERGED:g})")
             self.objects.update(self.context)
             if on_tick is not None and on_tick(self) is False:
                 break

@@ -54,6 +54,9 @@ class TaskConfig:
     phases: ScriptedPhases | None = None
     """Scripted phases of the episode as the release has them (``tasks/phases.py``: a scripted lift, a frozen
     hand); None: the policy acts every step (the paper's MDP)."""
+    scenario_overrides: str = ""
+    """YAML applied on top of ``scenario`` (``LoadScenario``'s ``scenario_text``), e.g. ``"{plant_config:
+    {time_step: 0.002}}"`` to train or measure a sub-task under other physics settings; "": the scenario as it is."""
     residual: str = ""
     """A scripted base controller (``tasks/residual.py``, e.g. ``"tool_grasp_script"``) that the policy's action
     corrects: the env applies ``clip(base(observation, step) + action)``; "": the action itself (the paper's)."""
