@@ -80,3 +80,11 @@ def release_tool_grasp_phases() -> ScriptedPhases:
     """The release's tool Grasp schedule: the policy's wrist for 60 steps, a lift over steps 60-90 (0.15 m at
     0.005 m per step), then the arm still and the fingers frozen."""
     return ScriptedPhases(policy_wrist_steps=60, lift_start=60, lift_end=90, lift_action=1.0, freeze_hand_step=90)
+
+
+def release_block_grasp_phases() -> ScriptedPhases:
+    """The release's block Grasp schedule: the policy's wrist for 75 steps, then a scripted lift to the end of the
+    150-step episode (at ``lift_action`` 1: 0.375 m at 0.005 m per step, so the 0.30 m of success is cleared
+    from about step 135 even if the policy did not lift at all; a base that lifts earlier clears it sooner); the
+    hand stays the policy's."""
+    return ScriptedPhases(policy_wrist_steps=75, lift_start=75, lift_end=150, lift_action=1.0)

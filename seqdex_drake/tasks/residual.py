@@ -36,6 +36,12 @@ def _tool_grasp_script() -> BaseController:
     return ScriptedToolGrasp()
 
 
+def _block_grasp_script() -> BaseController:
+    from seqdex_drake.scene.block_grasp_script import ScriptedBlockGrasp
+
+    return ScriptedBlockGrasp()
+
+
 def _tool_reorient_gait() -> BaseController:
     from seqdex_drake.scene.tool_reorient_gait import FingerGait
 
@@ -46,6 +52,7 @@ def _tool_reorient_gait() -> BaseController:
 RESIDUAL_BASES: dict[str, Callable[[], BaseController]] = {
     "tool_grasp_script": _tool_grasp_script,  # The scripted hammer pickup (scene/tool_grasp_script.py).
     "tool_reorient_gait": _tool_reorient_gait,  # A searched open-loop finger gait (scene/tool_reorient_gait.py).
+    "block_grasp_script": _block_grasp_script,  # The scripted block pickup (scene/block_grasp_script.py).
 }
 
 

@@ -43,9 +43,10 @@ class RewardWeights:
     clearance: float = 0.0
     """Weight of the hover-clearance term (the hand-over chain's Reach only; not a paper term)."""
     lift: float = 0.0
-    """Weight of the lift term of tool Grasp's small-budget variant (``tool_grasp.budget_config``; not a paper
-    term): the object's rise above its start as a fraction of the success lift, capped at 1, while its orientation
-    stays within the success tolerance."""
+    """Weight of the lift term of the Grasp sub-tasks' small-budget variants (``tool_grasp.budget_config``,
+    ``grasp.budget_config``; not a paper term): the object's rise above its start as a fraction of the success
+    lift, capped at 1, while it is held as success requires (tool: orientation within the tolerance; block:
+    fingertips within the reach sum)."""
 
 
 def penalties(weights: RewardWeights, action: np.ndarray, hand_torque: np.ndarray) -> dict[str, float]:
