@@ -185,3 +185,20 @@ def test_scenario_overrides_change_the_envs_physics():
     assert env.scenario.plant_config.discrete_contact_approximation == "lagged"  # The rest as the scenario has it.
     with pytest.raises(Exception, match="bogus"):
         make_env("grasp", dataclasses.replace(config, scenario_overrides="{bogus: 1}"))
+
+
+def test_block_resets_leave_the_open_hand_clear_of_the_box():
+    """The hovering open hand's fingertips reach 14.6 cm along +x and its palm 13 cm back: blocks sampled near the
+    far or near wall put them inside it (21 of 150 resets), where no action could free them."""
+    env = make_env("grasp")
+    plant = env.plant
+    hand = {int(index) for index in plant.GetBodyIndices(plant.GetModelInstanceByName("allegro"))}
+    station_context = env.station.GetMyContextFromRoot(env.context)
+    for seed in range(60):
+        env.reset(seed=seed)
+        query = env.station.GetOutputPort("query_object").Eval(station_context)
+        inspector = query.inspector()
+        touching = [pair for pair in query.ComputePointPairPenetration()
+                    if {int(plant.GetBodyFromFrameId(inspector.GetFrameId(g)).index())
+                        for g in (pair.id_A, pair.id_B)} & hand]
+        assert not touching, f"seed {seed}: the open hand starts in contact ({touching[0].depth:.3f} m deep)"

@@ -35,20 +35,21 @@ step / 150).
 
 Measured (``measure(range(30))`` in the budget env with the residual at zero; the command
 ``.venv/bin/python -c "from seqdex_drake.scene.block_grasp_script import measure; print(measure(range(30)))"``):
-28 / 30 = 93 % on seeds 0-29 (failed: 4, 20); 28 / 30 on held-out seeds 1000-1029 (failed: 1017, 1021); 27 / 30
-on seeds 100-129 (failed: 116, 124, 126). About 2 s per episode on a shared core. Under the budget residual's
-initial exploration noise (Gaussian, std 0.1, on the 3 wrist corrections; ``measure(range(30), wrist_noise=0.1)``):
-28 / 30 (failed: 4, 16). Earlier versions: C at palm z 0.15 with the jaws forming at the start height 0 / 10 (the
-thumb swept onto the block's top and toppled it); C at 0.165 without ``x_min`` 21 / 30 (every block nearer than
-x = 0.11 m out of reach); ``squeeze`` 0.2 instead of 0.1 25 / 30 on seeds 100-129.
+30 / 30 on seeds 0-29, 30 / 30 on held-out seeds 1000-1029 and 30 / 30 on seeds 100-129; under the budget
+residual's initial exploration noise (Gaussian, std 0.1, on the 3 wrist corrections; ``measure(range(30),
+wrist_noise=0.1)``) 30 / 30. About 2 s per episode on a shared core. ``seqdex rollout --task grasp --zero-action``
+runs it over more episodes (``results/building_blocks.md``). Earlier versions: C at palm z 0.15 with the jaws
+forming at the start height 0 / 10 (the thumb swept onto the block's top and toppled it); C at 0.165 without
+``x_min`` 21 / 30 (every block nearer than x = 0.11 m out of reach); ``squeeze`` 0.2 instead of 0.1 25 / 30 on
+seeds 100-129.
 
-Failure causes (seeds 0-29 and 100-129, on which ``x_min``, ``depth`` and ``squeeze`` were chosen; 1000-1029
-untouched): a block near the box's far wall (x > 0.42 m; 4, 116, 124, 1017, 1021), where the reset's hover pose
-puts the open hand's straight fingertips (0.146 m beyond the hand centre) inside the wall (x 0.55 m), so the
-fingers never move and the arm cannot pull them out (a reset matter: no action frees them); a block near the
-near wall (x < 0.1 m; 20, 126, and 16 under noise), pinched off-centre near the thumb, that tips over as the
-jaws close. With ``squeeze`` 0.2 also a 1x2-footprint block with its length along x that tilted in the length
-pinch (an index tip rode over its end) and fell in the lift.
+Failure causes seen while tuning (``x_min``, ``depth`` and ``squeeze`` were chosen on seeds 0-29 and 100-129):
+blocks near the box's far wall (x > 0.41 m), where the reset's hover pose put the open hand's straight fingertips
+(0.146 m beyond the hand centre) inside the wall, and near the near wall (x < 0.08 m), where it put the palm in
+the wall: no action frees either, and resets no longer sample there (``tasks/blocks_common.sample_box_xy``);
+with them 28 / 30 on seeds 0-29. A block near the near wall (x < 0.1 m) is pinched off-centre near the thumb
+(the hand's x is held at ``x_min``) and can tip over as the jaws close. With ``squeeze`` 0.2 a 1x2-footprint
+block with its length along x tilted in the length pinch (an index tip rode over its end) and fell in the lift.
 """
 
 from __future__ import annotations
