@@ -33,10 +33,10 @@ step / 150).
   gains make the press compliant, and a wider block simply stops the jaws earlier). The thumb cannot reach nearer
   the wrist than about palm z 0.09 at this depth, which bounds the opening.
 
-Measured (``measure(range(30))`` in the budget env with the residual at zero; the command
-``.venv/bin/python -c "from seqdex_drake.scene.block_grasp_script import measure; print(measure(range(30)))"``):
+Measured in the budget env with the residual at zero (``seqdex rollout --task grasp --zero-action --episodes 30
+--seed 0``, or ``measure(range(30), make_env("grasp", budget_config("grasp")))``):
 30 / 30 on seeds 0-29, 30 / 30 on held-out seeds 1000-1029 and 30 / 30 on seeds 100-129; under the budget
-residual's initial exploration noise (Gaussian, std 0.1, on the 3 wrist corrections; ``measure(range(30),
+residual's initial exploration noise (Gaussian, std 0.1, on the 3 wrist corrections; ``measure(range(30), env,
 wrist_noise=0.1)``) 30 / 30. About 2 s per episode on a shared core. ``seqdex rollout --task grasp --zero-action``
 runs it over more episodes (``results/building_blocks.md``). Earlier versions: C at palm z 0.15 with the jaws
 forming at the start height 0 / 10 (the thumb swept onto the block's top and toppled it); C at 0.165 without
@@ -221,12 +221,8 @@ def run_episode(env, seed: int, controller: ScriptedBlockGrasp | None = None, wr
     return Episode(bool(info["success"]), float(env.object_position()[2]) - start, float(env.fingertip_distance()))
 
 
-def measure(seeds, env=None, controller: ScriptedBlockGrasp | None = None, wrist_noise: float = 0.0) -> dict:
-    """Per-seed success of the scripted pickup over ``seeds`` (the env's own ``info["success"]`` at the end), by
-    default in the budget env (``grasp.budget_config()``: the script is the residual base, the corrections zero)."""
-    if env is None:
-        from seqdex_drake.tasks.grasp import budget_config
-        from seqdex_drake.tasks.registry import make_env
-
-        env = make_env("grasp", budget_config())
+def measure(seeds, env, controller: ScriptedBlockGrasp | None = None, wrist_noise: float = 0.0) -> dict:
+    """Per-seed success of the scripted pickup over ``seeds`` (the env's own ``info["success"]`` at the end) in
+    ``env``, e.g. the budget env ``make_env("grasp", budget_config("grasp"))`` (the script is the residual base,
+    the corrections zero). The env is the caller's: this module sits below the tasks, which use it as a base."""
     return {seed: run_episode(env, seed, controller, wrist_noise).success for seed in seeds}
