@@ -37,21 +37,17 @@ def main(argv=None):
     # The quick mode checks the script and its keys: the shipped and the former settings only.
     variants = {name: VARIANTS[name] for name in ("shipped", "former")} if args.test else VARIANTS
     load = os.getloadavg()[0]
-    totals = {name: {"search": 0.0, "grasp": 0.0} for name in variants}
+    totals = {name: {"search_steps": 0, "search_s": 0.0, "grasp_steps": 0, "grasp_s": 0.0} for name in variants}
     for _ in range(repeats):
         for name, text in variants.items():
             result = search_over_grasp(steps, 1, search_overrides=text)
-            # Time per step, summed over passes: rates from sums, not means of rates.
-            totals[name]["search"] += result["search_steps"] / result["search_env_steps_per_s"]
-            totals[name]["grasp"] += result["grasp_steps"] / result["grasp_env_steps_per_s"]
-            totals[name].setdefault("steps", [0, 0])
-            totals[name]["steps"][0] += result["search_steps"]
-            totals[name]["steps"][1] += result["grasp_steps"]
+            for env in ("search", "grasp"):  # Rates from summed steps and times, not means of rates.
+                totals[name][f"{env}_steps"] += result[f"{env}_steps"]
+                totals[name][f"{env}_s"] += result[f"{env}_steps"] / result[f"{env}_env_steps_per_s"]
             print(f"{name:12s} {result}", flush=True)
     ratios = {}
     for name, total in totals.items():
-        search_rate = total["steps"][0] / total["search"]
-        grasp_rate = total["steps"][1] / total["grasp"]
+        search_rate, grasp_rate = (total[f"{env}_steps"] / total[f"{env}_s"] for env in ("search", "grasp"))
         ratios[name] = {"search_env_over_grasp_env": round(search_rate / grasp_rate, 4),
                         "search_env_steps_per_s": round(search_rate, 2), "grasp_env_steps_per_s": round(grasp_rate, 2)}
     summary = {"variants": ratios, "overrides": variants,

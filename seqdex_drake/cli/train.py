@@ -205,10 +205,10 @@ def _resume_learner(args, run_dir: Path, record: dict) -> tuple:
 def _write_record(run_dir: Path, record: dict, config) -> None:
     """Writes config.json and scenario.yaml (atomically: a crash leaves the old file or the new one)."""
     from seqdex_drake.atomic import atomic_write
-    from seqdex_drake.scenario import DumpScenario, LoadScenario, ScenarioError
+    from seqdex_drake.scenario import DumpScenario, ScenarioError
 
     try:
-        scenario = DumpScenario(LoadScenario(config.scenario, scenario_text=config.scenario_overrides or "{}"))
+        scenario = DumpScenario(config.load_scenario())
     except ScenarioError as error:
         raise CliError(str(error)) from error
     atomic_write(run_dir / "config.json", lambda file: file.write((json.dumps(record, indent=2) + "\n").encode()))

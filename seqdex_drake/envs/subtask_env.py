@@ -29,7 +29,6 @@ from seqdex_drake.observation_layout import (
 )
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, ALLEGRO_Q_MAX, ALLEGRO_Q_MIN, p_PalmHc_Palm, p_PalmPc_Palm
 from seqdex_drake.robots.arm_ik import PalmIK
-from seqdex_drake.scenario import LoadScenario
 from seqdex_drake.scene.objects import SceneObjects
 from seqdex_drake.station import MakeControllerPlant, MakeStation, RefreshSampledOutputs
 from seqdex_drake.systems.observations import ObservationAssembler, ObservationTarget
@@ -65,7 +64,7 @@ class SubtaskEnv(gym.Env):
     def __init__(self, task: Task, meshcat=None):
         self.task = task
         self.config: TaskConfig = task.config
-        self.scenario = LoadScenario(self.config.scenario, scenario_text=self.config.scenario_overrides or "{}")
+        self.scenario = self.config.load_scenario()
         builder = DiagramBuilder()
         station = builder.AddNamedSystem("station", MakeStation(self.scenario, meshcat=meshcat))
         self.plant = station.GetSubsystemByName("plant")

@@ -61,6 +61,12 @@ class TaskConfig:
     """A scripted base controller (``tasks/residual.py``, e.g. ``"tool_grasp_script"``) that the policy's action
     corrects: the env applies ``clip(base(observation, step) + action)``; "": the action itself (the paper's)."""
 
+    def load_scenario(self):
+        """The station scenario this sub-task runs in: ``scenario`` with ``scenario_overrides`` applied."""
+        from seqdex_drake.scenario import LoadScenario
+
+        return LoadScenario(self.scenario, scenario_text=self.scenario_overrides or "{}")
+
     def __post_init__(self):
         """Refuses values no episode can run with (``ValueError`` naming the field, the value and the range)."""
         where = f"TaskConfig {self.name}" if self.name else "TaskConfig"
