@@ -11,6 +11,7 @@ import dataclasses
 import io
 import time
 from collections.abc import Callable
+from itertools import pairwise
 
 import numpy as np
 import torch
@@ -33,7 +34,7 @@ from seqdex_drake.chaining.stage_envs import EnvKit, pooled_env
 from seqdex_drake.chaining.terminal_buffer import TerminalBuffer
 from seqdex_drake.chaining.tstar import fit_tstar, tstar_bonus
 from seqdex_drake.chaining.wrappers import InitialStateVectorEnv, TransitionBonusVectorEnv
-from seqdex_drake.env_state import EnvState
+from seqdex_drake.env_state import EnvState, check_handoff
 from seqdex_drake.rl.config import PPOConfig
 from seqdex_drake.rl.ppo import PPO
 from seqdex_drake.tasks.registry import budget_config, default_config, observation_spec
@@ -46,7 +47,7 @@ class Pipeline:
     """One run of ``config.method`` on ``chain`` in ``run_dir``.
 
     Args:
-        chain: the chain (its stages must share one station scene).
+        chain: the chain (consecutive stages on one station scene, or on scenes a hand-off crosses).
         config: budgets, weights and the method.
         run_dir: the run directory (see :mod:`seqdex_drake.chaining.pipeline`).
         resume: continue a run in ``run_dir`` instead of starting one.
@@ -110,11 +111,9 @@ class Pipeline:
         if self._envs is None:
             self._envs = [pooled_env(task, config, 0) for task, config in zip(self.stages, self.task_configs,
                                                                               strict=True)]
-            sizes = {env.plant.num_positions() for env in self._envs}
-            if len(sizes) != 1:
-                raise ValueError(f"chain {self.chain.name!r}: its stages run on different station scenes "
-                                 f"({sorted(sizes)} plant positions), so states cannot be handed over in one "
-                                 f"simulation; give the stages one shared scenario")
+            for source, target in pairwise(self._envs):  # Hand-offs across scenes: envs/scene_handoff.py
+                if source.plant.num_positions() != target.plant.num_positions():
+                    check_handoff(source.objects.names, target.objects.names)
         return self._envs
 
     def require_env_kit(self) -> EnvKit:

@@ -8,12 +8,16 @@ stage's budget runs out (truncated; ``success`` is the last stage's success test
 
 Observation: the active stage's observation zero-padded to the largest stage's size, then a one-hot of the
 stage index (a single policy must know which sub-task it is in). Action: the sub-tasks' shared 19-dim action.
-Consecutive stages must share one plant (the same station scene); the constructor checks it.
+Consecutive stages on different station scenes hand over the robot and the target object
+(``envs/scene_handoff.py``); the constructor checks that every object has a counterpart in the next scene.
 """
+
+from itertools import pairwise
 
 import gymnasium as gym
 import numpy as np
 
+from seqdex_drake.env_state import check_handoff
 from seqdex_drake.tasks.base import TaskConfig
 from seqdex_drake.tasks.registry import make_env
 
@@ -39,10 +43,9 @@ class ChainEnv(gym.Env):
         self.stages = list(stages)
         self.envs = list(envs) if envs is not None else [make_env(name, config)
                                                          for name, config in zip(stages, configs, strict=True)]
-        sizes = {env.plant.num_positions() for env in self.envs}
-        if len(sizes) != 1:
-            raise ValueError(f"the stages {stages} run on different stations ({sorted(sizes)} plant positions); "
-                             f"a chain env needs one scene for all of them")
+        for source, target in pairwise(self.envs):  # Hand-offs across scenes: envs/scene_handoff.py
+            if source.plant.num_positions() != target.plant.num_positions():
+                check_handoff(source.objects.names, target.objects.names)
         self.dims = [env.observation_space.shape[0] for env in self.envs]
         self.padded = max(self.dims)
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, (self.padded + len(stages),), np.float32)

@@ -17,6 +17,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, Demultiplexer
 
 from seqdex_drake.env_state import EnvState
+from seqdex_drake.envs import scene_handoff
 from seqdex_drake.envs.randomization import DomainRandomizer
 from seqdex_drake.observation_layout import (
     ACTION_SIZE,
@@ -216,20 +217,25 @@ class SubtaskEnv(gym.Env):
         self.assembler.set_target(self._assembler_context, self._observation_target)
 
     def get_state(self) -> EnvState:
-        return EnvState(self.plant.GetPositions(self.plant_context).copy(),
-                        self.plant.GetVelocities(self.plant_context).copy(), self.objects.get_state(self.context),
-                        self.target_object, self.goal.copy(), np.array(self._arm_target),
-                        np.array(self._hand_target), np.array(self._previous_action), self.config.name,
-                        np.array(self._arm_velocity_target), float(self.context.get_time()))
+        return scene_handoff.capture(self, EnvState(
+            self.plant.GetPositions(self.plant_context).copy(), self.plant.GetVelocities(self.plant_context).copy(),
+            self.objects.get_state(self.context), self.target_object, self.goal.copy(), np.array(self._arm_target),
+            np.array(self._hand_target), np.array(self._previous_action), self.config.name,
+            np.array(self._arm_velocity_target), float(self.context.get_time())))
 
     def set_state(self, state: EnvState) -> None:
         """Restores a saved state exactly (a few state writes and one contact solve for the sampled outputs; no
-        re-simulation), its simulation time included."""
-        self.context.SetTime(float(state.time))
-        self.plant.SetPositions(self.plant_context, state.plant_positions)
-        self.plant.SetVelocities(self.plant_context, state.plant_velocities)
-        self.objects.set_state(self.context, state.objects)
-        self.set_target(state.target_object, state.goal)
+        re-simulation), its simulation time included. A state saved on another station scene (another plant size:
+        a hand-off between sub-tasks of different scenes) carries over the robot and the target object, the rest
+        of this scene parked (``envs/scene_handoff.py``)."""
+        if np.size(state.plant_positions) != self.plant.num_positions():
+            scene_handoff.restore(self, state)
+        else:
+            self.context.SetTime(float(state.time))
+            self.plant.SetPositions(self.plant_context, state.plant_positions)
+            self.plant.SetVelocities(self.plant_context, state.plant_velocities)
+            self.objects.set_state(self.context, state.objects)
+            self.set_target(state.target_object, state.goal)
         arm, hand, previous, arm_v = (floats(np.asarray(v, dtype=float)) for v in (
             state.arm_target, state.hand_target, state.previous_action, state.arm_velocity_target))
         self._hand_target = hand

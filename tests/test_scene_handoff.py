@@ -1,0 +1,81 @@
+"""Hand-offs across station scenes (``envs/scene_handoff.py``): a Search state (the 72-block pile) starts Orient
+(one block in the box) with the robot and the dug-out block where they were and the other blocks parked; a block
+held at Grasp's end stays in hand when Insert (the boards scene) starts from it; a state without the carried fields
+is refused with a clear error; and chains check that every object has a counterpart in the next scene."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from seqdex_drake.env_state import SceneHandoffError, check_handoff, counterpart
+from seqdex_drake.envs.chain_env import ChainEnv
+from seqdex_drake.tasks.registry import budget_config, make_env
+
+
+@pytest.fixture(scope="module")
+def envs():
+    return {"search": make_env("search"), "orient": make_env("orient"),
+            "grasp": make_env("grasp", budget_config("grasp")), "insert": make_env("insert")}
+
+
+def test_search_state_starts_orient_with_its_block_and_robot(envs):
+    search, orient = envs["search"], envs["orient"]
+    search.reset(seed=3)
+    search.step(np.zeros(19))
+    state = search.get_state()
+    assert state.robot_positions.shape == (23,) and state.target_positions.shape == (7,)
+    orient.reset(seed=0)  # Whatever it held before.
+    orient.reset(options={"initial_state": state})
+    block_type = state.target_object.split("_")[1]
+    assert orient.target_object == f"block_{block_type}"
+    np.testing.assert_allclose(orient.object_position(), search.object_position(), atol=1e-12)
+    np.testing.assert_allclose(np.r_[orient.arm_q(), orient.hand_q()], np.r_[search.arm_q(), search.hand_q()])
+    np.testing.assert_allclose(orient.observation()[:143], search.observation()[:143], atol=1e-5)  # Up to tactile.
+    others = [name for name in orient.objects.names if name != orient.target_object]
+    positions = orient.objects.positions(orient.context)
+    for name in others:  # Parked off the table, frozen.
+        assert positions[orient.objects.index(name), 4] < -1.0
+    assert orient.objects.frozen_names(orient.context) == others
+    assert orient.context.get_time() == pytest.approx(search.context.get_time())
+    for _ in range(3):
+        *_, info = orient.step(np.zeros(19))
+        assert not info.get("simulator_error")
+
+
+def test_a_block_held_at_grasps_end_stays_in_hand_in_insert(envs):
+    grasp, insert = envs["grasp"], envs["insert"]
+    grasp.reset(seed=4)
+    for _ in range(grasp.config.episode_length):
+        *_, info = grasp.step(np.zeros(19))  # The scripted pickup (the residual at zero).
+    assert info["success"]
+    state = grasp.get_state()
+    insert.reset(options={"initial_state": state})
+    assert insert.target_object == grasp.target_object and insert.objects.frozen_names(insert.context) == [
+        name for name in insert.objects.names if name != insert.target_object]
+    hold = np.r_[state.previous_action[:16], 0.0, -1.0, 0.0]  # The same hand targets; the wrist toward the boards.
+    for _ in range(20):
+        insert.step(hold)
+    assert insert.object_position()[2] > grasp.object_position()[2] - 0.02  # Still up, carried along -y.
+    assert insert.object_position()[1] < grasp.object_position()[1] - 0.05
+    assert insert.fingertip_distance() < 0.4
+
+
+def test_a_state_without_the_carried_fields_is_refused(envs):
+    search, orient = envs["search"], envs["orient"]
+    search.reset(seed=1)
+    old = dataclasses.replace(search.get_state(), robot_positions=np.zeros(0))
+    with pytest.raises(SceneHandoffError, match="collect the terminal buffer again"):
+        orient.reset(options={"initial_state": old})
+
+
+def test_counterparts_and_chain_checks(envs):
+    assert counterpart("block_3_7", ["block_1", "block_3"]) == "block_3"
+    assert counterpart("block_3", ["block_3", "block_3_1"]) == "block_3"
+    with pytest.raises(SceneHandoffError, match="no counterpart"):
+        counterpart("hammer", ["block_1"])
+    with pytest.raises(SceneHandoffError, match="hammer"):
+        check_handoff(["block_1", "hammer"], ["block_1"])
+    chain = ChainEnv(["grasp", "insert"], envs=[envs["grasp"], envs["insert"]])  # Different scenes: accepted.
+    observation, _ = chain.reset(seed=2)
+    assert observation.shape == chain.observation_space.shape
