@@ -73,6 +73,9 @@ class FreezeConfig:
     again where it rests (0 disables re-freezing)."""
     mass_scale: float = 100.0
     """Frozen objects' mass multiplier, so a dynamic object resting on one does not push it away."""
+    never_wake: list[str] = dataclasses.field(default_factory=list)
+    """Name patterns (fnmatch) of objects that, frozen, never wake: supports placed as fixtures (Insert's plates on
+    the baseplate, whose undersides overlap the baseplate's studs and would be pushed up if they moved)."""
 
 
 @dataclasses.dataclass

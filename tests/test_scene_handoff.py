@@ -10,6 +10,7 @@ import pytest
 
 from seqdex_drake.env_state import SceneHandoffError, check_handoff, counterpart
 from seqdex_drake.envs.chain_env import ChainEnv
+from seqdex_drake.tasks.insert import BASEPLATE_TOP, LAYER_HEIGHT, PLATE_XY
 from seqdex_drake.tasks.registry import budget_config, make_env
 
 
@@ -53,6 +54,11 @@ def test_a_block_held_at_grasps_end_stays_in_hand_in_insert(envs):
     insert.reset(options={"initial_state": state})
     assert insert.target_object == grasp.target_object and insert.objects.frozen_names(insert.context) == [
         name for name in insert.objects.names if name != insert.target_object]
+    # Insert draws its plate and goal as a reset does (the Grasp state has none).
+    plates = [name for name in insert.objects.names if name.startswith("plate_")
+              and insert.objects.positions(insert.context)[insert.objects.index(name), 4] > 0.0]
+    assert len(plates) == 1 and insert.goal[2] == pytest.approx(BASEPLATE_TOP + int(plates[0][-1]) * LAYER_HEIGHT)
+    assert np.linalg.norm(insert.goal[:2] - PLATE_XY) < 0.06
     hold = np.r_[state.previous_action[:16], 0.0, -1.0, 0.0]  # The same hand targets; the wrist toward the boards.
     for _ in range(20):
         insert.step(hold)

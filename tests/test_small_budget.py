@@ -68,7 +68,7 @@ def test_tool_grasp_budget_env_lifts_by_script_and_freezes_the_hand():
 
 def test_paper_config_has_no_phases():
     assert default_config("tool_grasp").phases is None and default_config("tool_grasp").reward.lift == 0
-    assert budget_config("orient") == default_config("orient")  # No budget variant: the paper's.
+    assert budget_config("lower") == default_config("lower")  # No budget variant: its default.
 
 
 # ------------------------------------------------------------------------------------------ demonstrations

@@ -15,6 +15,7 @@ static geometries and the frozen objects' geometries.
 
 from __future__ import annotations
 
+import fnmatch
 import math
 
 import numpy as np
@@ -60,6 +61,8 @@ class SceneObjects:
         self._static = [g for body in self.plant.GetBodiesWeldedTo(self.plant.world_body())
                         for g in self.plant.GetCollisionGeometriesForBody(body)]
         self._base_filtered = self._plant_filtered_pairs()
+        self._never_wake = np.array([any(fnmatch.fnmatch(name, pattern) for pattern in scenario.freeze.never_wake)
+                                     for name in self.names], dtype=bool).reshape(len(self.names))
         self._still_ticks = [0] * len(self.names)  # Per object, as Python numbers (the wake check's arithmetic).
         self._last_speed = [0.0] * len(self.names)
         hand = self.plant.GetModelInstanceByName("allegro")
@@ -253,6 +256,7 @@ class SceneObjects:
         wake_radius2, ticks, speeds, positions = config.wake_radius**2, list(self._still_ticks), [], []
         sleep_ticks = config.sleep_ticks if config.enabled else 0
         wake, sleep, moving, idle, reach = [], [], [], [], False
+        never_wake = self._never_wake.tolist()
         for i, (is_frozen, (a, b, c, d, e, f), v_last) in enumerate(zip(frozen.tolist(), self._x_index,
                                                                           self._last_speed, strict=True)):
             px, py, pz, vx, vy, vz = x[a], x[b], x[c], x[d], x[e], x[f]
@@ -267,6 +271,8 @@ class SceneObjects:
                     d2 = e2
             if is_frozen:
                 ticks[i] = 0
+                if never_wake[i]:
+                    continue
                 if d2 < wake_radius2:
                     wake.append(i)
                 elif d2 < 0.2**2:  # Within reach of the hand (it spans ~0.25 m): maybe touched.
@@ -291,7 +297,8 @@ class SceneObjects:
         if reach:  # Read the contacts (a Python loop over them) only then.
             is_moving = np.zeros(len(self.names), dtype=bool)
             is_moving[moving] = True
-            touched = np.flatnonzero(frozen & self._touched(plant_context, frozen, is_moving)).tolist()
+            touched = np.flatnonzero(frozen & ~self._never_wake & self._touched(plant_context, frozen, is_moving)
+                                     ).tolist()
             wake = sorted(set(wake).union(touched))
         if not wake and not sleep:
             self._still_ticks = ticks

@@ -60,6 +60,9 @@ class TaskConfig:
     residual: str = ""
     """A scripted base controller (``tasks/residual.py``, e.g. ``"tool_grasp_script"``) that the policy's action
     corrects: the env applies ``clip(base(observation, step) + action)``; "": the action itself (the paper's)."""
+    goal_yaws_deg: list[float] = dataclasses.field(default_factory=lambda: [0.0, 90.0])
+    """Goal-pose yaws [deg] a goal task draws from at reset, each a multiple of 90 (the plate's stud grid; Insert:
+    0 puts the block's long side along world x, 90 along y). Default: both, as the paper."""
 
     def load_scenario(self):
         """The station scenario this sub-task runs in: ``scenario`` with ``scenario_overrides`` applied."""
@@ -97,6 +100,9 @@ class TaskConfig:
 
         require(self.residual == "" or self.residual in RESIDUAL_BASES, "residual",
                 f"'' or one of {', '.join(RESIDUAL_BASES)}")
+        require(len(self.goal_yaws_deg) > 0 and all(finite(yaw) and float(yaw) % 90.0 == 0.0
+                                                    for yaw in self.goal_yaws_deg),
+                "goal_yaws_deg", "a non-empty list of multiples of 90 (deg)")
 
 
 class Task(abc.ABC):

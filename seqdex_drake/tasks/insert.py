@@ -5,8 +5,17 @@ standalone a scripted tripod pickup from the table (``tasks/handoff.py``). The g
 stands on the baseplate (frozen: a static support), the block's goal is stud-aligned on its top at yaw 0 or
 90 deg. Observation: base + goal pose, position and quaternion differences (173). Reward: the paper's Insert
 formula. Success (release): within 0.02 m and 0.2 rad of the goal, a 180 deg yaw flip counting as the goal.
+The goal yaws drawn are ``TaskConfig.goal_yaws_deg`` (default 0 and 90 deg).
+
+:func:`budget_config` is the variant that fits a small training budget (``../shared/TRAINING.md``), as block
+Grasp's: a residual policy (``tasks/residual.py``) on the scripted insertion of ``scene/block_insert_script.py``
+(alone 84, 80 and 83 / 100 at seeds 0, 1000 and 2000) that corrects its wrist (3 dims; the hand's 16 are pinned
+to the script's), the episode's progress in the observation (174 entries: the script's release and lift are
+timed), and yaw-90 goals only.
 """
 
+
+import dataclasses
 
 import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw
@@ -32,6 +41,18 @@ def default_config() -> TaskConfig:
         reward=RewardWeights(progress=1.0, fingertip=0.0, action=-0.001, torque=-0.003, alpha0=20.0,
                              alpha1=1.0, e0=0.06),
         success_threshold=[0.02, 0.2])  # [position (m), rotation (rad)] tolerances
+
+
+def budget_config() -> TaskConfig:
+    """The small-budget variant: a residual policy on the scripted insertion of ``scene/block_insert_script.py``
+    that corrects its wrist (the script's hand applies as it is: it holds the reset's grasp, then opens), the
+    episode's progress in the observation (the script's release and lift are timed), and goals at yaw 90 deg
+    only (the held block's long side lies along world y, and neither the wrist nor the script can turn it).
+    The hand is not the policy's: the script holds the grasp by re-applying the previous applied hand action, so
+    exploration noise on the hand would add up over the episode (a random walk of the grip) instead of averaging
+    out."""
+    return dataclasses.replace(default_config(), observe_time=True, residual="block_insert_script",
+                               hand_actions=False, goal_yaws_deg=[90.0])
 
 
 def goal_pose(block_type: int, layers: int, cell: tuple[int, int], yaw: float) -> np.ndarray:
@@ -61,15 +82,28 @@ class InsertTask(Task):
         block_type = int(rng.choice(env.config.object_types))
         name = block_name(block_type)
         env.objects.park(env.context)
+        self.place_goal(env, rng, name)
+        scripted_block_pickup(env, name, yaw_jitter=0.1, rng=rng)
+
+    def on_restore(self, env, from_task: str = "") -> None:
+        """A hand-off from another sub-task (forward initialization: Grasp's held block, carried over from its
+        scene, ``envs/scene_handoff.py``) has no plate or goal: they are drawn as a reset draws them, from the
+        env's generator. An Insert state of its own keeps its goal."""
+        if from_task and from_task != self.config.name:
+            self.place_goal(env, env.np_random, env.target_object)
+
+    def place_goal(self, env, rng, name: str) -> None:
+        """Stands a plate of 1-3 layers on the baseplate (frozen) and declares block ``name``'s goal on it: a
+        stud-aligned cell at a yaw of ``goal_yaws_deg``."""
+        block_type = int(name.split("_")[1])
         layers = int(rng.integers(1, 4))
         env.objects.set_pose(env.context, f"plate_{layers}",
                              RigidTransform([*PLATE_XY, BASEPLATE_TOP]), frozen=True)
-        yaw = float(rng.choice([0.0, np.pi / 2]))
+        yaw = float(rng.choice(np.deg2rad(self.config.goal_yaws_deg)))  # Default [0, 90]: 0 or pi / 2 exactly.
         nx, ny = BLOCK_SPECS[block_type].cells
-        span = (ny, nx) if yaw else (nx, ny)
+        span = (ny, nx) if yaw % np.pi else (nx, ny)
         cell = (int(rng.integers(0, PLATE_CELLS - span[0] + 1)), int(rng.integers(0, PLATE_CELLS - span[1] + 1)))
         env.set_target(name, goal_pose(block_type, layers, cell, yaw))
-        scripted_block_pickup(env, name, yaw_jitter=0.1, rng=rng)
 
     def reward_terms(self, env, action):
         position, rotation = block_goal_errors(env)

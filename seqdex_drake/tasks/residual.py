@@ -42,6 +42,24 @@ def _block_grasp_script() -> BaseController:
     return ScriptedBlockGrasp()
 
 
+def _block_insert_script() -> BaseController:
+    from seqdex_drake.scene.block_insert_script import ScriptedBlockInsert
+
+    return ScriptedBlockInsert()
+
+
+def _block_search_script() -> BaseController:
+    from seqdex_drake.scene.block_search_script import ScriptedBlockSearch
+
+    return ScriptedBlockSearch()
+
+
+def _block_orient_script() -> BaseController:
+    from seqdex_drake.scene.block_orient_script import ScriptedBlockOrient
+
+    return ScriptedBlockOrient()
+
+
 def _tool_reorient_gait() -> BaseController:
     from seqdex_drake.scene.tool_reorient_gait import FingerGait
 
@@ -53,6 +71,9 @@ RESIDUAL_BASES: dict[str, Callable[[], BaseController]] = {
     "tool_grasp_script": _tool_grasp_script,  # The scripted hammer pickup (scene/tool_grasp_script.py).
     "tool_reorient_gait": _tool_reorient_gait,  # A searched open-loop finger gait (scene/tool_reorient_gait.py).
     "block_grasp_script": _block_grasp_script,  # The scripted block pickup (scene/block_grasp_script.py).
+    "block_orient_script": _block_orient_script,  # The scripted fingertip roll (scene/block_orient_script.py).
+    "block_search_script": _block_search_script,  # The scripted search (scene/block_search_script.py).
+    "block_insert_script": _block_insert_script,  # The scripted block insertion (scene/block_insert_script.py).
 }
 
 

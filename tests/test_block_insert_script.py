@@ -1,0 +1,74 @@
+"""The scripted block Insert (``scene/block_insert_script.py``) and the budget block Insert built on it: the budget
+config applies the script as its residual base on yaw-90 goals, the script is Markov in (observation, step) and
+reads the reset's grasp off the observation, and the script alone seats a block on its goal and lets go of it."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from seqdex_drake.robots.allegro import unscale_limits_to_action
+from seqdex_drake.scene.block_insert_script import ScriptedBlockInsert, run_episode
+from seqdex_drake.tasks.base import TaskConfig
+from seqdex_drake.tasks.registry import budget_config, default_config, make_env
+from seqdex_drake.tasks.residual import make_base
+
+
+@pytest.fixture(scope="module")
+def env():
+    return make_env("insert", budget_config("insert"))
+
+
+def test_budget_config_is_a_residual_on_the_script_with_yaw_90_goals():
+    config = budget_config("insert")
+    assert config.residual == "block_insert_script" and not config.hand_actions and config.observe_time
+    assert config.goal_yaws_deg == [90.0] and default_config("insert").goal_yaws_deg == [0.0, 90.0]
+    assert isinstance(make_base(config.residual), ScriptedBlockInsert)
+    for yaws in ([], [45.0], [float("nan")]):
+        with pytest.raises(ValueError, match="goal_yaws_deg must be"):
+            TaskConfig(goal_yaws_deg=yaws)
+    with pytest.raises(ValueError, match="TaskConfig insert: goal_yaws_deg must be"):
+        dataclasses.replace(config, goal_yaws_deg=[30.0])
+
+
+def test_the_script_is_markov_and_reads_the_grasp_off_the_observation(env):
+    observation, _ = env.reset(seed=4)
+    assert env.observation_space.shape == (174,) and observation[173] == 0.0  # Goal part and progress entry.
+    np.testing.assert_allclose(env.goal[3:], [np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)], atol=1e-9)  # Yaw 90.
+    np.testing.assert_array_equal(env.action_space.high[:16], 0.0)  # The hand is the script's.
+    first, second = ScriptedBlockInsert(), ScriptedBlockInsert()
+    for step in (0, 10, 60, 99, 100, 103, 115, 124):
+        action = first.act(observation, step)
+        assert action.shape == (19,) and np.all(np.abs(action) <= 1.0)
+        np.testing.assert_array_equal(action, first.act(observation.copy(), step))  # No state kept between calls.
+        np.testing.assert_array_equal(action, second.act(observation, step))
+        np.testing.assert_array_equal(action, first.act(observation[:173], step))  # Progress entry or not.
+    # Step 0: the reset's hand targets, from the joint positions and motor torques (PD law).
+    np.testing.assert_allclose(first.act(observation, 0)[:16], unscale_limits_to_action(env._hand_target), atol=2e-3)
+    moved = observation.copy()
+    moved[166] = -0.05  # The goal 5 cm behind the block (along -x) instead of ahead of it: the wrist turns back.
+    assert first.act(observation, 30)[16] > 0.0 > first.act(moved, 30)[16]
+    assert first.act(observation, 115)[18] == 1.0  # The lift, after the release.
+
+
+def test_zero_corrections_apply_the_script(env):
+    """The budget env given zeros applies exactly the script's action of its own observation."""
+    observation, _ = env.reset(seed=3)
+    script = ScriptedBlockInsert()
+    for step in range(15):
+        expected = script.act(observation, step)
+        observation, *_ = env.step(np.zeros(19))
+        np.testing.assert_allclose(observation[124:143], expected, atol=1e-6)  # The applied (previous) action.
+
+
+@pytest.mark.parametrize("seed", [0, 6])  # A 1x4 and a curved 1x2, each on a 2-layer plate.
+def test_the_script_alone_seats_the_block_and_lets_go(env, seed):
+    episode = run_episode(env, seed)
+    assert episode.success
+    assert episode.position_error < 0.008 and episode.rotation_error < 0.1  # Seated, studs home (to a few mm).
+    assert env.fingertip_distance() > 0.4  # Released: the hand has lifted away.
+    plate = next(name for name in env.objects.names if name.startswith("plate_")
+                 and env.objects.positions(env.context)[env.objects.index(name), 4] > 0.0)
+    assert plate in env.objects.frozen_names(env.context)  # A fixture: the hand came near, it never woke.
+    np.testing.assert_allclose(env.objects.positions(env.context)[env.objects.index(plate), 4:],
+                               [0.25, -0.23, 0.618], atol=1e-5)  # (It rose 0.5-1.5 cm when it woke.)
