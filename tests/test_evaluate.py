@@ -59,3 +59,23 @@ def test_bad_input(tmp_path):
                      observation_spec("search", 160), source_task="search", target_task="tool_reorient")
     with pytest.raises(CliError, match="tool_reorient.pt"):
         evaluate.run(parse("--task", "tool_positioning", "--run-dir", str(tmp_path), "--test"))
+
+
+def test_run_dir_stages_run_the_task_variant_they_were_trained_on(tmp_path):
+    """A chain run directory's stage runs its checkpoint's recorded preset (``config.json`` of ``seqdex train``
+    beside it, also through a link), else the chain run's ``pipeline.json`` preset, else the paper's."""
+    from seqdex_drake.evaluation.runner import run_dir_configs
+    from seqdex_drake.tasks.registry import budget_config, default_config
+
+    trained = tmp_path / "training" / "grasp_run"
+    trained.mkdir(parents=True)
+    (trained / "last.pt").write_bytes(b"")
+    (trained / "config.json").write_text(json.dumps({"task": "grasp", "preset": "budget", "demos": None}))
+    stage = tmp_path / "run" / "stages" / "grasp"
+    stage.mkdir(parents=True)
+    (stage / "last.pt").symlink_to(trained / "last.pt")
+    run_dir = tmp_path / "run"
+    configs = run_dir_configs(run_dir, ["orient", "grasp"], [None, stage / "last.pt"])
+    assert configs == [default_config("orient"), budget_config("grasp")]
+    (run_dir / "pipeline.json").write_text(json.dumps({"config": {"preset": "budget"}}))
+    assert run_dir_configs(run_dir, ["orient"], [None]) == [budget_config("orient")]

@@ -52,9 +52,10 @@ TOOL_HELD_LIFT = TOOL_GOAL_LIFT / 2
 DIVERGED = 1e3
 
 
-#: Within a stage the tool chain's approach never takes over again (a feasibility switch restarts it): tool Grasp's
-#: script moves the hand more than the default 0.1 m from the tool's top while it grasps.
-TOOL_REENGAGE = float("inf")
+#: Within a stage the approach never takes over again (a stage change restarts it), as in the envs, where nothing
+#: pulls the hand back: tool Grasp's script moves the hand more than the default 0.1 m from the tool's top while it
+#: grasps, block Search's moves it 14-17 cm aside of the target, Orient's fingertip strokes across the block.
+REENGAGE = float("inf")
 
 
 class ChainRunError(ValueError):
@@ -105,6 +106,30 @@ def observation_sizes() -> dict[str, int]:
             for name, (_, task) in REGISTRY.items()}
 
 
+def run_dir_configs(run_dir: Path, tasks: list[str], checkpoints: list) -> list:
+    """Each stage's task config as its checkpoint was trained (a policy trained on a budget variant runs with its
+    scripted phases, progress input and residual base): the preset recorded by ``seqdex train`` in the
+    ``config.json`` beside the checkpoint (a linked checkpoint: beside the file it links to), else the preset of
+    the chain run's ``pipeline.json``, else the paper's; untrained stages take their preset the same way."""
+    import json
+
+    from seqdex_drake.cli import task_config
+    from seqdex_drake.cli.rollout import PRESETS, run_preset, run_residual
+
+    try:
+        chain_preset = json.loads((run_dir / "pipeline.json").read_text())["config"]["preset"]
+    except (OSError, ValueError, KeyError, TypeError):
+        chain_preset = "paper"
+    configs = []
+    for task, checkpoint in zip(tasks, checkpoints, strict=True):
+        trained = Path(checkpoint).resolve() if checkpoint is not None else None
+        if trained is not None and (trained.parent / "config.json").is_file():
+            configs.append(task_config(task, False, run_preset(trained), residual=run_residual(trained)))
+        else:
+            configs.append(task_config(task, False, chain_preset if chain_preset in PRESETS else "paper"))
+    return configs
+
+
 class ChainRunner:
     """A station + chain controller (+ display) for one task family (see the module docstring).
 
@@ -146,13 +171,14 @@ class ChainRunner:
                 raise ChainRunError(str(error)) from error
             stages, self.missing = found.stages, list(found.missing)
             feasibility = self._feasibility_files(Path(config.run_dir), found.feasibility)
+            stage_configs = run_dir_configs(Path(config.run_dir), self.tasks, found.policies)
         else:
             self.missing = [f"stage {i} ({task}): no checkpoint directory given (--checkpoints); the stage runs "
                             f"an untrained policy" for i, task in enumerate(self.tasks)]
         params = ChainParams(switcher=SwitcherParams(max_switches=config.max_switches,
                                                      stage_steps=config.stage_steps),
                              untrained_seed=config.seed, stage_configs=stage_configs,
-                             reengage_distance=TOOL_REENGAGE if config.family == "tool_positioning" else None)
+                             reengage_distance=REENGAGE)
         if config.untrained_hidden_sizes is not None:
             params.untrained_hidden_sizes = tuple(config.untrained_hidden_sizes)
         builder = DiagramBuilder()

@@ -65,6 +65,7 @@ from seqdex_drake.robots.allegro import (
     p_PalmHc_Palm,
     unscale_limits_to_action,
 )
+from seqdex_drake.scene.scripted_episode import play_script
 
 WRIST_STEP = 0.005
 """Metres per step of the hand centre at wrist action 1 (the env's ``wrist_step``)."""
@@ -206,19 +207,9 @@ def run_episode(env, seed: int, controller: ScriptedBlockGrasp | None = None, wr
     budget env) the env applies the script and this sends zero corrections; otherwise it sends ``controller``'s
     actions (default :class:`ScriptedBlockGrasp`). ``wrist_noise``: the standard deviation of Gaussian noise added
     to the 3 wrist entries of what is sent (a residual policy's exploration)."""
-    controller = controller or ScriptedBlockGrasp()
-    rng = rng or np.random.default_rng(seed)
-    env.reset(seed=seed)
-    start = float(env.object_position()[2])
-    info = {"success": False}
-    for step in range(env.config.episode_length):
-        action = np.zeros(19) if env.config.residual else controller.action(env, step)
-        if wrist_noise:
-            action[16:] += rng.normal(0.0, wrist_noise, 3)
-        _, _, terminated, truncated, info = env.step(action)
-        if terminated or truncated:
-            break
-    return Episode(bool(info["success"]), float(env.object_position()[2]) - start, float(env.fingertip_distance()))
+    info, _, _ = play_script(env, seed, controller or ScriptedBlockGrasp(), wrist_noise, rng)
+    rise = float(env.object_position()[2]) - env.task.start_height  # The Grasp task's height at reset.
+    return Episode(bool(info["success"]), rise, float(env.fingertip_distance()))
 
 
 def measure(seeds, env, controller: ScriptedBlockGrasp | None = None, wrist_noise: float = 0.0) -> dict:

@@ -66,12 +66,14 @@ import dataclasses
 
 import numpy as np
 
+from seqdex_drake.observation_layout import GOAL_POSITION_ERROR, MOTOR_TACTILE, PREVIOUS_ACTION
 from seqdex_drake.robots.allegro import (
     ALLEGRO_Q_MAX,
     ALLEGRO_Q_MIN,
     scale_action_to_limits,
     unscale_limits_to_action,
 )
+from seqdex_drake.scene.scripted_episode import play_script
 
 WRIST_STEP = 0.005
 """Metres per step of the hand centre at wrist action 1 (the env's ``wrist_step``)."""
@@ -82,14 +84,10 @@ JOINT_Q = slice(7, 23)
 """The 16 Allegro joint positions in the observation (after the 7 Franka joints)."""
 JOINT_V = slice(30, 46)
 """The 16 Allegro joint velocities in the observation."""
-PREVIOUS_HAND = slice(124, 140)
+PREVIOUS_HAND = slice(PREVIOUS_ACTION.start, PREVIOUS_ACTION.start + 16)
 """The hand part of the previous applied action."""
-MOTOR_TORQUE = slice(143, 159)
-"""The torques the 16 Allegro motors exert."""
 GOAL_POSITION = slice(159, 162)
 """The goal position of the block's origin (the centre of its bottom rim)."""
-GOAL_MINUS_OBJECT = slice(166, 169)
-"""Goal - block position."""
 PALM_VELOCITY = slice(105, 108)
 """The palm's linear velocity."""
 
@@ -134,7 +132,7 @@ class ScriptedBlockInsert:
         o = observation
         if step > 0:
             return np.asarray(o[PREVIOUS_HAND], float)
-        q = np.asarray(o[JOINT_Q], float) + (np.asarray(o[MOTOR_TORQUE], float) + self.hand_kd * np.asarray(
+        q = np.asarray(o[JOINT_Q], float) + (np.asarray(o[MOTOR_TACTILE], float) + self.hand_kd * np.asarray(
             o[JOINT_V], float)) / self.hand_kp
         return unscale_limits_to_action(np.clip(q, ALLEGRO_Q_MIN, ALLEGRO_Q_MAX))
 
@@ -142,7 +140,7 @@ class ScriptedBlockInsert:
         """Where the block's origin should go now (world) [m]."""
         o = np.asarray(observation, float)
         goal = o[GOAL_POSITION]
-        error = o[GOAL_MINUS_OBJECT]
+        error = o[GOAL_POSITION_ERROR]
         d_xy = float(np.linalg.norm(error[:2]))
         z = goal[2] + max(self.seat, min(self.hover, self.seat + self.funnel * (d_xy - self.descend_xy)))
         return np.r_[goal[:2], z]
@@ -161,7 +159,7 @@ class ScriptedBlockInsert:
         elif step >= self.release_at:
             wrist = np.zeros(3)
         else:
-            block = o[GOAL_POSITION] - o[GOAL_MINUS_OBJECT]
+            block = o[GOAL_POSITION] - o[GOAL_POSITION_ERROR]
             velocity = o[PALM_VELOCITY] / CONTROL_RATE
             limit = min(1.0, (step + 1) / self.ramp)
             wrist = np.clip((self.gain * (self.block_target(o) - block) - self.damping * velocity) / self.wrist_step,
@@ -191,20 +189,8 @@ def run_episode(env, seed: int, controller: ScriptedBlockInsert | None = None, w
     budget env) the env applies the script and this sends zero corrections; otherwise it sends ``controller``'s
     actions (default :class:`ScriptedBlockInsert`). ``wrist_noise``: the standard deviation of Gaussian noise
     added to the 3 wrist entries of what is sent (a residual policy's exploration)."""
-    from seqdex_drake.tasks.insert import block_goal_errors
-
-    controller = controller or ScriptedBlockInsert()
-    rng = rng or np.random.default_rng(seed)
-    env.reset(seed=seed)
-    info = {"success": False}
-    for step in range(env.config.episode_length):
-        action = np.zeros(19) if env.config.residual else controller.action(env, step)
-        if wrist_noise:
-            action[16:] += rng.normal(0.0, wrist_noise, 3)
-        _, _, terminated, truncated, info = env.step(action)
-        if terminated or truncated:
-            break
-    return Episode(bool(info["success"]), *block_goal_errors(env))
+    info, _, _ = play_script(env, seed, controller or ScriptedBlockInsert(), wrist_noise, rng)
+    return Episode(bool(info["success"]), *env.task.goal_errors(env))  # The Insert task's own errors.
 
 
 def measure(seeds, env, controller: ScriptedBlockInsert | None = None, wrist_noise: float = 0.0) -> dict:

@@ -75,6 +75,7 @@ from seqdex_drake.robots.allegro import (
     unscale_limits_to_action,
 )
 from seqdex_drake.scene.piles import BOX_CENTER
+from seqdex_drake.scene.scripted_episode import play_script
 
 WRIST_STEP = 0.005
 """Metres per step of the hand centre at wrist action 1 (the env's ``wrist_step``)."""
@@ -275,13 +276,7 @@ def run_episode(env, seed: int, controller: ScriptedBlockOrient | None = None) -
     budget env) the env applies the script and this sends zero corrections; otherwise it sends ``controller``'s
     actions (default :class:`ScriptedBlockOrient`)."""
     controller = controller or ScriptedBlockOrient()
-    env.reset(seed=seed)
-    info = {"success": False}
-    for step in range(env.config.episode_length):
-        action = np.zeros(19) if env.config.residual else controller.action(env, step)
-        _, _, terminated, truncated, info = env.step(action)
-        if terminated or truncated:
-            break
+    info, _, _ = play_script(env, seed, controller)
     o = env.observation()
     plan, R_WB = controller.plan(o), _rotation(o[114:118])
     across = np.cross(R_WB[:, 0], [0.0, 0.0, 1.0])

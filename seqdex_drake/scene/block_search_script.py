@@ -60,6 +60,7 @@ import numpy as np
 
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, p_PalmHc_Palm, unscale_limits_to_action
 from seqdex_drake.scene.piles import BOX_CENTER, BOX_WALL_HEIGHT
+from seqdex_drake.scene.scripted_episode import play_script
 
 WRIST_STEP = 0.005
 """Metres per step of the hand centre at wrist action 1 (the env's ``wrist_step``)."""
@@ -130,13 +131,7 @@ def run_episode(env, seed: int, controller: ScriptedBlockSearch | None = None) -
     budget env) zero corrections, otherwise ``controller``'s actions (default :class:`ScriptedBlockSearch`).
     Returns the env's ``success`` at the last step, the target's pixel count at reset and at the end, and how far
     the target moved [m]."""
-    controller = controller or ScriptedBlockSearch()
-    observation, info = env.reset(seed=seed)
-    start_pixels, start = float(observation[159]), np.array(observation[111:114], float)
-    for step in range(env.config.episode_length):
-        action = np.zeros(19) if env.config.residual else controller.act(observation, step)
-        observation, _, terminated, truncated, info = env.step(action)
-        if terminated or truncated:
-            break
+    info, first, observation = play_script(env, seed, controller or ScriptedBlockSearch())
+    start_pixels, start = float(first[159]), np.array(first[111:114], float)
     return {"success": bool(info["success"]), "start_pixels": start_pixels, "pixels": float(observation[159]),
             "target_moved": float(np.linalg.norm(np.array(observation[111:114], float) - start))}

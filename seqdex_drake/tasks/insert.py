@@ -105,6 +105,10 @@ class InsertTask(Task):
         cell = (int(rng.integers(0, PLATE_CELLS - span[0] + 1)), int(rng.integers(0, PLATE_CELLS - span[1] + 1)))
         env.set_target(name, goal_pose(block_type, layers, cell, yaw))
 
+    def goal_errors(self, env) -> tuple[float, float]:
+        """:func:`block_goal_errors` of ``env``'s current state (position m, rotation rad)."""
+        return block_goal_errors(env)
+
     def reward_terms(self, env, action):
         position, rotation = block_goal_errors(env)
         return goal_reward(self.config.reward, position, rotation, env.fingertip_distance(), action,
