@@ -243,3 +243,16 @@ def test_failed_qp_holds_last_command_and_counts(caplog):
     assert osc.GetOutputPort("qp_failures").Eval(context)[0] == 5  # Ticks at 0, ..., 4/60.
     np.testing.assert_array_equal(osc.GetOutputPort("franka.desired_state").Eval(context), held)
     assert sum("OSC QP not solved" in r.getMessage() for r in caplog.records) == 1
+
+
+def test_travel_height_rises_first_crosses_then_descends():
+    straight, _, _ = _standalone()
+    osc, _, _ = _standalone(OscParams(travel_height=0.9, travel_xy=0.05))
+    p_WH = np.array([0.25, 0.19, 0.72])  # A hover point over the box.
+    low_outside = np.array([0.25, -0.2, 0.70])  # Over the baseplate, below the box walls' tops.
+    np.testing.assert_array_equal(straight.waypoint(low_outside, p_WH), p_WH)  # Default: a straight line.
+    np.testing.assert_allclose(osc.waypoint(low_outside, p_WH), [0.25, -0.2, 0.9])  # Up in place first,
+    np.testing.assert_allclose(osc.waypoint(np.array([0.25, -0.2, 0.895]), p_WH), [0.25, 0.19, 0.9])  # across,
+    np.testing.assert_allclose(osc.waypoint(np.array([0.25, 0.16, 0.9]), p_WH), p_WH)  # then down within 5 cm.
+    high = np.array([0.25, 0.19, 1.0])  # A hover point above the travel height: crossing at its height.
+    np.testing.assert_allclose(osc.waypoint(np.array([0.25, -0.2, 1.0]), high), high)

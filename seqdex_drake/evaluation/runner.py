@@ -56,6 +56,10 @@ DIVERGED = 1e3
 #: pulls the hand back: tool Grasp's script moves the hand more than the default 0.1 m from the tool's top while it
 #: grasps, block Search's moves it 14-17 cm aside of the target, Orient's fingertip strokes across the block.
 REENGAGE = float("inf")
+#: The Building Blocks approach crosses at this height (m) of the hand centre between the baseplate and the pile:
+#: the box walls' tops are at 0.765 m, and a straight line from the baseplate ran the hanging fingers into the near
+#: wall (the hand stopped against it, and the next block's Search never started).
+BLOCK_TRAVEL_HEIGHT = 0.9
 
 
 class ChainRunError(ValueError):
@@ -178,7 +182,8 @@ class ChainRunner:
         params = ChainParams(switcher=SwitcherParams(max_switches=config.max_switches,
                                                      stage_steps=config.stage_steps),
                              untrained_seed=config.seed, stage_configs=stage_configs,
-                             reengage_distance=REENGAGE)
+                             reengage_distance=REENGAGE,
+                             travel_height=BLOCK_TRAVEL_HEIGHT if config.family == "building_blocks" else 0.0)
         if config.untrained_hidden_sizes is not None:
             params.untrained_hidden_sizes = tuple(config.untrained_hidden_sizes)
         builder = DiagramBuilder()

@@ -82,8 +82,11 @@ class ChainParams:
     reengage_distance: float | None = None
     """If set, the approach's ``OscParams.reengage_distance``: how far (m) the target may get from the hand while a
     stage runs before the approach takes over again (``inf``: never within a stage; a feasibility switch still
-    restarts it). The tool chain uses ``inf``: tool Grasp's script moves the hand more than 0.1 m from the tool's
-    top on purpose."""
+    restarts it). The chains use ``inf``: tool Grasp's script moves the hand more than 0.1 m from the tool's top on
+    purpose, block Search's 14-17 cm aside of its target."""
+    travel_height: float = 0.0
+    """The approach's ``OscParams.travel_height``: a world height (m) the hand crosses at between workspaces (the
+    Building Blocks chain: over the box walls between the baseplate and the pile); 0: straight lines."""
     stage_configs: Sequence | None = None
     """Each stage's :class:`~seqdex_drake.tasks.base.TaskConfig` as its policy was trained (EMA, wrist step,
     episode length, scripted phases; ``seqdex_drake.chaining.shipped`` records them); None: the tasks' defaults."""
@@ -270,6 +273,8 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
                                          solve_while_handed_over=False)
     if params.reengage_distance is not None:
         osc_params = dataclasses.replace(osc_params, reengage_distance=params.reengage_distance)
+    if params.travel_height > 0.0:
+        osc_params = dataclasses.replace(osc_params, travel_height=params.travel_height)
     controller_plant = MakeControllerPlant(scenario)
     home = np.asarray(scenario.robot.arm_home, dtype=float)
     osc = builder.AddNamedSystem("osc", OperationalSpaceController(

@@ -12,7 +12,8 @@ Quadratic program (decision variables: joint accelerations ``qdd`` (7) and joint
          qdd_lo <= qdd <= qdd_hi                                 (velocity, position, PD-torque limits)
 
 ``J`` is the spatial Jacobian (angular; translational) of the controlled point C (the palm centre), ``a_des``
-a velocity-limited PD acceleration toward the hover point H = target + (0, 0, hover_height) and toward the
+a velocity-limited PD acceleration toward the hover point H = target + (0, 0, hover_height) (or, with a
+``travel_height``, first up to that height and across at it: :meth:`OperationalSpaceController.waypoint`) and toward the
 held orientation R_WD, ``qdd_post`` a joint-space PD toward the posture (the arm home). The bounds on
 ``qdd`` combine, per joint and per tick, the velocity limit on ``v + qdd dt``, a braking-distance bound that
 keeps ``q`` inside its limits minus a margin, and the limit on the torque the station's joint PD actuators
@@ -172,6 +173,18 @@ class OperationalSpaceController(LeafSystem):
         """The hover point H above target T (world, m)."""
         return np.asarray(p_WT, dtype=float) + np.array([0.0, 0.0, self._params.hover_height])
 
+    def waypoint(self, p_WC: np.ndarray, p_WH: np.ndarray) -> np.ndarray:
+        """Where the controlled point at ``p_WC`` heads for hover point ``p_WH``: the hover point itself, or with a
+        ``travel_height`` and farther than ``travel_xy`` from it horizontally, first straight up to that height,
+        then across at it."""
+        p = self._params
+        if p.travel_height <= 0.0 or np.linalg.norm(p_WH[:2] - p_WC[:2]) <= p.travel_xy:
+            return p_WH
+        height = max(p.travel_height, p_WH[2])
+        if p_WC[2] < height - p.hover_tolerance:
+            return np.array([p_WC[0], p_WC[1], height])
+        return np.array([p_WH[0], p_WH[1], height])
+
     def controlled_point(self, q: np.ndarray) -> np.ndarray:
         """p_WC: the controlled point in the world (m) at arm positions ``q`` (controller plant kinematics)."""
         self._plant.SetPositions(self._plant_context, q)
@@ -252,7 +265,7 @@ class OperationalSpaceController(LeafSystem):
                                               world, world)
         bias = plant.CalcBiasSpatialAcceleration(pc, JacobianWrtVariable.kV, self._palm_frame, self._p_PC,
                                                  world, world)
-        a_des = self._desired_acceleration(p_WC, X_WPalm.rotation(), J @ v, p_WH)
+        a_des = self._desired_acceleration(p_WC, X_WPalm.rotation(), J @ v, self.waypoint(p_WC, p_WH))
         a_des -= np.concatenate((bias.rotational(), bias.translational()))
 
         # Task + posture cost on qdd: |W (J qdd - a_des)|^2 + w_post |qdd - qdd_post|^2 + w_reg |qdd|^2.

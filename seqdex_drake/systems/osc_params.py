@@ -19,6 +19,12 @@ class OscParams:
     """The approach ends once the controlled point is within this distance (m) of the hover point."""
     reengage_distance: float = 0.10
     """After a handover the approach restarts only when the target is farther than this (m) from the hand."""
+    travel_height: float = 0.0
+    """If > 0: a world height (m) the controlled point travels at while it is farther than ``travel_xy`` from the
+    hover point horizontally; it first rises in place to it, then crosses, then descends. A path over obstacles
+    between workspaces (the Building Blocks box walls between the baseplate and the pile); 0: a straight line."""
+    travel_xy: float = 0.05
+    """Horizontal distance (m) from the hover point within which the approach leaves ``travel_height``."""
     position_kp: float = 200.0
     """Task-space stiffness (1/s^2) toward the hover point."""
     position_kd: float = 36.0
