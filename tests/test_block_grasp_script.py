@@ -7,6 +7,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from script_checks import assert_markov, assert_zero_corrections_apply
 
 from seqdex_drake.robots.allegro import p_PalmHc_Palm
 from seqdex_drake.scene.block_grasp_script import ScriptedBlockGrasp, run_episode
@@ -34,13 +35,7 @@ def test_budget_config_is_a_residual_on_the_script_with_progress_observed(env):
 
 def test_the_script_is_markov_in_observation_and_step(env):
     observation, _ = env.reset(seed=5)
-    first, second = ScriptedBlockGrasp(), ScriptedBlockGrasp()
-    for step in (0, 10, 40, 74, 100):
-        action = first.act(observation, step)
-        assert action.shape == (19,) and np.all(np.abs(action) <= 1.0)
-        np.testing.assert_array_equal(action, first.act(observation.copy(), step))  # No state kept between calls.
-        np.testing.assert_array_equal(action, second.act(observation, step))
-        np.testing.assert_array_equal(action, first.act(observation[:159], step))  # Progress entry or not.
+    first = assert_markov(ScriptedBlockGrasp, observation, (0, 10, 40, 74, 100), 159)
     moved = observation.copy()
     moved[111] += 0.05  # The block 5 cm further along x: the wrist goes after it.
     assert first.act(moved, 10)[16] > first.act(observation, 10)[16]
@@ -49,12 +44,7 @@ def test_the_script_is_markov_in_observation_and_step(env):
 
 def test_zero_corrections_apply_the_script(env):
     """The budget env given zeros applies exactly the script's action of its own observation."""
-    observation, _ = env.reset(seed=3)
-    script = ScriptedBlockGrasp()
-    for step in range(20):
-        expected = script.act(observation, step)
-        observation, *_ = env.step(np.zeros(19))
-        np.testing.assert_allclose(observation[124:143], expected, atol=1e-6)  # The applied (previous) action.
+    assert_zero_corrections_apply(env, ScriptedBlockGrasp(), seed=3, steps=20)
 
 
 @pytest.mark.parametrize("seed", [2, 11])  # A 1x4 pinched across its width; a 1x2 at yaw 0, pinched as it turns.

@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from script_checks import assert_markov, assert_zero_corrections_apply
 
 from seqdex_drake.robots.allegro import unscale_limits_to_action
 from seqdex_drake.scene.block_insert_script import ScriptedBlockInsert, run_episode
@@ -36,13 +37,7 @@ def test_the_script_is_markov_and_reads_the_grasp_off_the_observation(env):
     assert env.observation_space.shape == (174,) and observation[173] == 0.0  # Goal part and progress entry.
     np.testing.assert_allclose(env.goal[3:], [np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)], atol=1e-9)  # Yaw 90.
     np.testing.assert_array_equal(env.action_space.high[:16], 0.0)  # The hand is the script's.
-    first, second = ScriptedBlockInsert(), ScriptedBlockInsert()
-    for step in (0, 10, 60, 99, 100, 103, 115, 124):
-        action = first.act(observation, step)
-        assert action.shape == (19,) and np.all(np.abs(action) <= 1.0)
-        np.testing.assert_array_equal(action, first.act(observation.copy(), step))  # No state kept between calls.
-        np.testing.assert_array_equal(action, second.act(observation, step))
-        np.testing.assert_array_equal(action, first.act(observation[:173], step))  # Progress entry or not.
+    first = assert_markov(ScriptedBlockInsert, observation, (0, 10, 60, 99, 100, 103, 115, 124), 173)
     # Step 0: the reset's hand targets, from the joint positions and motor torques (PD law).
     np.testing.assert_allclose(first.act(observation, 0)[:16], unscale_limits_to_action(env._hand_target), atol=2e-3)
     moved = observation.copy()
@@ -53,12 +48,7 @@ def test_the_script_is_markov_and_reads_the_grasp_off_the_observation(env):
 
 def test_zero_corrections_apply_the_script(env):
     """The budget env given zeros applies exactly the script's action of its own observation."""
-    observation, _ = env.reset(seed=3)
-    script = ScriptedBlockInsert()
-    for step in range(15):
-        expected = script.act(observation, step)
-        observation, *_ = env.step(np.zeros(19))
-        np.testing.assert_allclose(observation[124:143], expected, atol=1e-6)  # The applied (previous) action.
+    assert_zero_corrections_apply(env, ScriptedBlockInsert(), seed=3, steps=15)
 
 
 @pytest.mark.parametrize("seed", [0, 6])  # A 1x4 and a curved 1x2, each on a 2-layer plate.

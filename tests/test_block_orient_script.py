@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from script_checks import assert_markov, assert_zero_corrections_apply
 
 from seqdex_drake.scene.block_orient_script import ScriptedBlockOrient, roll_angle, run_episode
 from seqdex_drake.tasks.orient import default_config
@@ -41,13 +42,7 @@ def test_roll_angle_names_the_resting_poses():
 
 def test_the_script_is_markov_in_observation_and_step(env):
     observation, _ = env.reset(seed=5)
-    first, second = ScriptedBlockOrient(), ScriptedBlockOrient()
-    for step in (0, 6, 20, 50, 74):
-        action = first.act(observation, step)
-        assert action.shape == (19,) and np.all(np.abs(action) <= 1.0)
-        np.testing.assert_array_equal(action, first.act(observation.copy(), step))  # No state kept between calls.
-        np.testing.assert_array_equal(action, second.act(observation, step))
-        np.testing.assert_array_equal(action, first.act(observation[:159], step))  # Progress entry or not.
+    first = assert_markov(ScriptedBlockOrient, observation, (0, 6, 20, 50, 74), 159)
     moved = observation.copy()
     moved[111] += 0.05  # The block 5 cm further along x: the wrist goes after it.
     assert first.act(moved, 20)[16] > first.act(observation, 20)[16]
@@ -56,12 +51,7 @@ def test_the_script_is_markov_in_observation_and_step(env):
 
 def test_zero_corrections_apply_the_script(env):
     """The budget env given zeros applies exactly the script's action of its own observation."""
-    observation, _ = env.reset(seed=3)
-    script = ScriptedBlockOrient()
-    for step in range(20):
-        expected = script.act(observation, step)
-        observation, *_ = env.step(np.zeros(19))
-        np.testing.assert_allclose(observation[124:143], expected, atol=1e-6)  # The applied (previous) action.
+    assert_zero_corrections_apply(env, ScriptedBlockOrient(), seed=3, steps=20)
 
 
 @pytest.mark.parametrize("seed", [5, 11])  # A 1x3 on a long side (one roll); a 1x2 upside down (two rolls).

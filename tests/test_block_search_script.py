@@ -4,6 +4,7 @@ alone it uncovers a target its hand hid at reset, leaving the pile in the box an
 
 import numpy as np
 import pytest
+from script_checks import assert_zero_corrections_apply
 
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, p_PalmHc_Palm, scale_action_to_limits
 from seqdex_drake.scene.block_search_script import ScriptedBlockSearch, run_episode
@@ -48,12 +49,7 @@ def test_the_script_is_markov_in_the_observation(env):
 
 def test_zero_corrections_apply_the_script(env):
     """The budget env given zeros applies exactly the script's action of its own observation."""
-    observation, _ = env.reset(seed=3)
-    script = ScriptedBlockSearch()
-    for step in range(4):
-        expected = script.act(observation, step)
-        observation, *_ = env.step(np.zeros(19))
-        np.testing.assert_allclose(observation[124:143], expected, atol=1e-6)  # The applied (previous) action.
+    assert_zero_corrections_apply(env, ScriptedBlockSearch(), seed=3, steps=4)
 
 
 def test_the_script_alone_uncovers_a_target_the_hand_hid(env):
