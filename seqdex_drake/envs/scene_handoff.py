@@ -56,12 +56,12 @@ def restore(env, state: EnvState) -> None:
     env.plant.SetPositions(env.plant_context, env.hand, robot_q[7:])
     env.plant.SetVelocities(env.plant_context, env.arm, robot_v[:7])
     env.plant.SetVelocities(env.plant_context, env.hand, robot_v[7:])
-    name = counterpart(state.target_object, env.objects.names) if state.target_object else env.target_object
-    if state.target_object:
+    if state.target_object:  # (Every sub-task declares one; a state without it carries the robot only.)
+        name = counterpart(state.target_object, env.objects.names)
         q = np.asarray(state.target_positions, float)
         X_WB = RigidTransform(Quaternion(q[:4] / np.linalg.norm(q[:4])), q[4:])
         env.objects.set_pose(env.context, name, X_WB, frozen=False)
         body = env.objects.bodies[env.objects.index(name)]
         env.plant.SetFreeBodySpatialVelocity(env.plant_context, body,
                                              SpatialVelocity(np.asarray(state.target_velocities, float)))
-    env.set_target(name, state.goal)
+        env.set_target(name, state.goal)
