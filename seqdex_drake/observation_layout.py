@@ -87,6 +87,14 @@ def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array(quat_product(floats(a), floats(b)))
 
 
+def rotation_matrix(q_wxyz) -> np.ndarray:
+    """The 3x3 rotation matrix of quaternion [w, x, y, z] (normalized first), e.g. an observed pose's (R_WB)."""
+    w, x, y, z = np.asarray(q_wxyz, dtype=float) / np.linalg.norm(q_wxyz)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
 def quat_conjugate(q) -> list[float]:
     """[w, -x, -y, -z] of a quaternion [w, x, y, z], as a list of floats."""
     w, x, y, z = floats(q)

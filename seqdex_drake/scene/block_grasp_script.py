@@ -58,6 +58,7 @@ import dataclasses
 
 import numpy as np
 
+from seqdex_drake.observation_layout import rotation_matrix
 from seqdex_drake.robots.allegro import (
     ALLEGRO_OPEN_Q,
     ALLEGRO_Q_MAX,
@@ -101,13 +102,6 @@ CLOSING = [np.r_[_JAW_FINGERS[h], ALLEGRO_OPEN_Q[8:12], _JAW_THUMB[h]] for h in 
 
 _FLEXION = [1, 2, 3, 5, 6, 7, 13, 14, 15]
 """The joints ``squeeze`` adds to: the index, middle and thumb flexion joints."""
-
-
-def _rotation(q_wxyz) -> np.ndarray:
-    w, x, y, z = np.asarray(q_wxyz, dtype=float) / np.linalg.norm(q_wxyz)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
 def _path(points: list[np.ndarray], s: float) -> np.ndarray:
@@ -154,7 +148,7 @@ class ScriptedBlockGrasp:
         """The hand-centre goal (C over the block's footprint centre, ``depth`` above its bottom; x at least
         ``x_min``) and the observed hand centre, world [m]."""
         o = observation
-        R_WP = _rotation(o[101:105])
+        R_WP = rotation_matrix(o[101:105])
         goal = np.asarray(o[111:114], float) + [0.0, 0.0, self.depth] - R_WP @ (p_PalmC_Palm - p_PalmHc_Palm)
         goal[0] = max(goal[0], self.x_min)
         return goal, np.asarray(o[98:101], float) + R_WP @ p_PalmHc_Palm

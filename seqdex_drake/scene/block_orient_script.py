@@ -67,6 +67,7 @@ import math
 
 import numpy as np
 
+from seqdex_drake.observation_layout import rotation_matrix
 from seqdex_drake.robots.allegro import (
     ALLEGRO_OPEN_Q,
     ALLEGRO_Q_MAX,
@@ -97,13 +98,6 @@ instead of the open thumb's 8.8 cm."""
 p_PalmTip_Palm = np.array([0.0924, 0.0, 0.1479])
 """The middle fingertip's centre in the palm frame, the hand at ``STYLUS_Q`` and free [m]: 9 cm below the palm,
 15 cm ahead of the wrist (measured in the env; the kinematics say 1 mm less, the finger sags)."""
-
-
-def _rotation(q_wxyz) -> np.ndarray:
-    w, x, y, z = np.asarray(q_wxyz, dtype=float) / np.linalg.norm(q_wxyz)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
 def roll_angle(R_WB: np.ndarray) -> float:
@@ -185,7 +179,7 @@ class ScriptedBlockOrient:
     def plan(self, observation) -> Plan:
         """The zone, stroke start and direction for the block pose in ``observation``."""
         o = observation
-        R_WB = _rotation(o[114:118])
+        R_WB = rotation_matrix(o[114:118])
         p_WB = np.asarray(o[111:114], float)
         roll = roll_angle(R_WB)
         corners = np.array([[x, y, z] for x in (-HALF_LENGTH, HALF_LENGTH) for y in (-BLOCK_WIDTH / 2, BLOCK_WIDTH / 2)
@@ -219,7 +213,8 @@ class ScriptedBlockOrient:
         """The action for ``observation`` (the env's, 159 or 160 entries) at ``step``."""
         o = np.asarray(observation, dtype=float)
         hand_action = unscale_limits_to_action(np.clip(self.hand_q(step), ALLEGRO_Q_MIN, ALLEGRO_Q_MAX))
-        tip = np.asarray(o[98:101], float) + _rotation(o[101:105]) @ p_PalmTip_Palm  # Where the tip would be, free.
+        # Where the tip would be, free.
+        tip = np.asarray(o[98:101], float) + rotation_matrix(o[101:105]) @ p_PalmTip_Palm
         velocity = np.asarray(o[105:108], float) / CONTROL_RATE  # Palm displacement per step.
         plan = self.plan(o)
         if plan.zone == "upright":  # Away from the block (radially, to ``release``), then up.
@@ -278,7 +273,7 @@ def run_episode(env, seed: int, controller: ScriptedBlockOrient | None = None) -
     controller = controller or ScriptedBlockOrient()
     info, _, _ = play_script(env, seed, controller)
     o = env.observation()
-    plan, R_WB = controller.plan(o), _rotation(o[114:118])
+    plan, R_WB = controller.plan(o), rotation_matrix(o[114:118])
     across = np.cross(R_WB[:, 0], [0.0, 0.0, 1.0])
     beside = abs(float((o[59:61] - o[111:113]) @ across[:2])) / max(float(np.linalg.norm(across)), 1e-9)
     clearance = max(float(o[61]) - plan.top, beside - BLOCK_WIDTH / 2) - FINGERTIP_RADIUS

@@ -58,6 +58,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from seqdex_drake.observation_layout import rotation_matrix
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, p_PalmHc_Palm, unscale_limits_to_action
 from seqdex_drake.scene.piles import BOX_CENTER, BOX_WALL_HEIGHT
 from seqdex_drake.scene.scripted_episode import play_script
@@ -69,13 +70,6 @@ CONTROL_RATE = 60.0
 
 OPEN_ACTION = unscale_limits_to_action(ALLEGRO_OPEN_Q)
 """The hand's action for the open hand (the reset's hand), flat fingers along world +x."""
-
-
-def _rotation(q_wxyz) -> np.ndarray:
-    w, x, y, z = np.asarray(q_wxyz, dtype=float) / np.linalg.norm(q_wxyz)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
 class ScriptedBlockSearch:
@@ -112,7 +106,7 @@ class ScriptedBlockSearch:
         side = self.thumb_side if p_target[1] <= self.split_y else -self.ring_side
         height = max(BOX_CENTER[2] + BOX_WALL_HEIGHT + self.clear_height, p_target[2] + self.target_rise)
         goal = np.array([p_target[0], p_target[1] + side, height])
-        return goal, np.asarray(o[98:101], float) + _rotation(o[101:105]) @ p_PalmHc_Palm
+        return goal, np.asarray(o[98:101], float) + rotation_matrix(o[101:105]) @ p_PalmHc_Palm
 
     def act(self, observation, step: int) -> np.ndarray:
         """The action for ``observation`` (the env's, 160 or 161 entries) at ``step``."""

@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from seqdex_drake.observation_layout import rotation_matrix
 from seqdex_drake.robots.allegro import (
     ALLEGRO_Q_MAX,
     ALLEGRO_Q_MIN,
@@ -96,13 +97,6 @@ CONTROL_RATE = 60.0
 """Policy steps per second (the env's control period is 1/60 s)."""
 
 
-def _rotation(q_wxyz) -> np.ndarray:
-    w, x, y, z = np.asarray(q_wxyz, dtype=float) / np.linalg.norm(q_wxyz)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-
-
 class ScriptedToolGrasp:
     """The scripted hammer pickup (see the module docstring): ``action(env, step)`` for steps 0-149 after
     ``env.reset`` (``reset(env)`` is kept for the controller interface; there is no state to reset). The action is
@@ -123,11 +117,11 @@ class ScriptedToolGrasp:
     def goal_and_hand(self, observation) -> tuple[np.ndarray, np.ndarray]:
         """The hand-centre goal (from the hammer's observed pose) and the observed hand centre, world [m]."""
         o = observation
-        A = np.asarray(o[111:114], float) + _rotation(o[114:118]) @ [0.0, self.ya, -0.0115]  # On the handle axis.
+        A = np.asarray(o[111:114], float) + rotation_matrix(o[114:118]) @ [0.0, self.ya, -0.0115]  # On the handle axis.
         # Palm frame at the held orientation: x = world -z, y = world y, z = world x; the hand centre Hc is at
         # palm (0.04, 0, 0.13). A at palm (hx, c, hz) <=> Hc = A + (0.13 - hz, -c, hx - 0.04).
         goal = A + np.array([0.13 - self.hz, -self.c, self.hx - 0.04])
-        hand = np.asarray(o[98:101], float) + _rotation(o[101:105]) @ p_PalmHc_Palm
+        hand = np.asarray(o[98:101], float) + rotation_matrix(o[101:105]) @ p_PalmHc_Palm
         return goal, hand
 
     def act(self, observation, step: int) -> np.ndarray:
