@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from script_checks import assert_markov, assert_zero_corrections_apply
 
+from seqdex_drake.observation_layout import GOAL_POSITION_ERROR
 from seqdex_drake.robots.allegro import unscale_limits_to_action
 from seqdex_drake.scene.block_insert_script import ScriptedBlockInsert, run_episode
 from seqdex_drake.tasks.base import TaskConfig
@@ -41,7 +42,8 @@ def test_the_script_is_markov_and_reads_the_grasp_off_the_observation(env):
     # Step 0: the reset's hand targets, from the joint positions and motor torques (PD law).
     np.testing.assert_allclose(first.act(observation, 0)[:16], unscale_limits_to_action(env._hand_target), atol=2e-3)
     moved = observation.copy()
-    moved[166] = -0.05  # The goal 5 cm behind the block (along -x) instead of ahead of it: the wrist turns back.
+    moved[159] = observation[159] - observation[166] - 0.05  # The goal 5 cm behind the block (along -x) instead
+    moved[166] = -0.05  # of ahead of it (the block where it is): the wrist turns back.
     assert first.act(observation, 30)[16] > 0.0 > first.act(moved, 30)[16]
     assert first.act(observation, 115)[18] == 1.0  # The lift, after the release.
 
@@ -62,3 +64,18 @@ def test_the_script_alone_seats_the_block_and_lets_go(env, seed):
     assert plate in env.objects.frozen_names(env.context)  # A fixture: the hand came near, it never woke.
     np.testing.assert_allclose(env.objects.positions(env.context)[env.objects.index(plate), 4:],
                                [0.25, -0.23, 0.618], atol=1e-5)  # (It rose 0.5-1.5 cm when it woke.)
+
+
+def test_the_wrist_holds_still_when_the_block_is_not_in_hand(env):
+    """A block in the pinch is steered; one that is not in hand (dropped, or never grasped: a failed Grasp in a
+    chain) is not chased: the wrist holds, the hand keeps its targets."""
+    script = ScriptedBlockInsert()
+    observation, _ = env.reset(seed=3)
+    assert script.holds(observation)
+    assert np.linalg.norm(script.act(observation, 20)[16:]) > 0.1  # Carried toward the goal.
+    away = np.array(observation, dtype=float)
+    away[GOAL_POSITION_ERROR] -= [0.0, 0.12, 0.0]  # The observed block 12 cm from the hand, in the box.
+    assert not script.holds(away)
+    action = script.act(away, 20)
+    np.testing.assert_array_equal(action[16:], 0.0)
+    np.testing.assert_allclose(action[:16], script.act(observation, 20)[:16])

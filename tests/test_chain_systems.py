@@ -283,6 +283,28 @@ def test_switcher_every_tick_mode_counts_changes_only():
     assert rig.run() == (0, 2)
 
 
+def test_switcher_stage_epoch_changes_on_switches_and_on_entering_approach_stages():
+    """``stage_epoch`` tells the approach controller to bring the hand back to the hover point: at a feasibility
+    switch, and at a sequential advance into a stage flagged ``approach_on_entry`` (not into the others)."""
+    switcher = FeasibilitySwitcher([None] * 4, [2] * 4, (2, 2, 2, 2), PERIOD, SwitcherParams(
+        max_switches=0, approach_on_entry=(False, True, False, True)))
+    context = switcher.CreateDefaultContext()
+    simulator = Simulator(switcher, context)
+    simulator.Initialize()
+    seen = []
+    for _ in range(8):
+        tick(simulator, 1)
+        seen.append((int(switcher.GetOutputPort("active_stage").Eval(context)[0]),
+                     int(switcher.GetOutputPort("stage_epoch").Eval(context)[0])))
+    assert seen == [(0, 0), (1, 1), (1, 1), (2, 1), (2, 1), (3, 2), (3, 2), (3, 2)]
+    rig = SwitcherRig()  # No stage flagged: the epoch counts the feasibility switches.
+    rig.set(2.0, 0.0, 0.0)
+    assert rig.run() == (1, 1)
+    assert rig.switcher.GetOutputPort("stage_epoch").Eval(rig.context)[0] == 1
+    with pytest.raises(ValueError, match="approach_on_entry needs one flag per stage"):
+        FeasibilitySwitcher([None] * 4, [2] * 4, (2,) * 4, PERIOD, SwitcherParams(approach_on_entry=(True,)))
+
+
 # ------------------------------------------------------------------------------------- chain + station
 def test_load_chain_checkpoints(tmp_path):
     (tmp_path / "stages" / "grasp").mkdir(parents=True)

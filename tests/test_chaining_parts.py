@@ -10,6 +10,7 @@ import pytest
 from seqdex_drake.chaining.chain import ChainError, ChainNames, LoadChain
 from seqdex_drake.chaining.rollouts import run_chain
 from seqdex_drake.chaining.wrappers import InitialStateVectorEnv, TransitionBonusVectorEnv
+from seqdex_drake.env_state import SceneHandoffError
 from seqdex_drake.envs.serial import SerialVectorEnv
 from seqdex_drake.tasks.registry import task_names
 
@@ -143,6 +144,18 @@ def test_run_chain_sequential_and_switcher_rules():
 
     # max_switches = 0 ignores F entirely.
     assert run_chain(envs, forward, seed=0, feasibility=bypass, max_switches=0).stages_run == [0, 1, 2]
+
+    # A restart into a scene that cannot hold the state (Building Blocks: a single block back to the pile) ends the
+    # episode as a failure instead of raising.
+    class PileEnv(CounterEnv):
+        def reset(self, *, seed=None, options=None):
+            if (options or {}).get("initial_state") is not None:
+                raise SceneHandoffError("the handed-over target object 'block_1' has no counterpart")
+            return super().reset(seed=seed, options=options)
+
+    outcome = run_chain([PileEnv(length=3, goal=0.5), *envs[1:]], forward, seed=0,
+                        feasibility=[ConstantF(lambda h: 0.0)] * 2, max_switches=2)
+    assert outcome.stages_run == [0, 0] and not outcome.success and outcome.switches == 1
 
 
 def test_intermediate_transitions_hand_over_before_the_previous_stage_ends():

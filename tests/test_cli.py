@@ -180,3 +180,19 @@ def test_rollout_from_a_hand_off_buffer(tmp_path, capsys):
     capsys.readouterr()
     assert main(["rollout", "--task", "insert", "--zero-action", "--test", "--initial-states", buffer]) == 2
     assert "target task 'tool_reorient'" in capsys.readouterr().err
+
+
+def test_rollout_on_another_scene_from_a_hand_off_buffer(tmp_path, capsys):
+    """``--scene`` runs a sub-task on another station scenario (block Orient in the whole pile): the hand-offs
+    restore that scene's state; without hand-offs, or with an unknown scenario, it is refused before any rollout."""
+    buffer, out = str(tmp_path / "tool.npz"), tmp_path / "rollout.json"
+    _tool_grasp_buffer(buffer)
+    assert main(["rollout", "--task", "tool_reorient", "--zero-action", "--test", "--episodes", "1",
+                 "--initial-states", buffer, "--scene", "tool_positioning/tool_grasp", "--out", str(out)]) == 0
+    assert json.loads(out.read_text())["scene"] == "tool_positioning/tool_grasp"
+    capsys.readouterr()
+    assert main(["rollout", "--task", "orient", "--zero-action", "--test", "--scene", "building_blocks/search"]) == 2
+    assert "needs --initial-states" in capsys.readouterr().err
+    assert main(["rollout", "--task", "tool_reorient", "--zero-action", "--test", "--initial-states", buffer,
+                 "--scene", "building_blocks/pile"]) == 2
+    assert "unknown scenario 'building_blocks/pile'" in capsys.readouterr().err

@@ -5,6 +5,7 @@ import argparse
 import csv
 import json
 
+import numpy as np
 import pytest
 
 from seqdex_drake.chaining.feasibility import FeasibilityConfig, build_feasibility_model
@@ -42,6 +43,10 @@ def test_evaluate_test_writes_tables_and_plot(tmp_path):
     records = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
     assert len(records) == 3 + 4  # 3 tools, then the hammer for each switch cap
     assert {r["experiment"] for r in records} == {"main", "switching"}
+    # Each record says how the object was as each stage started: [its z axis's world z, its lift (m)].
+    entry = records[0]["stage_entries"]["tool_grasp"]
+    assert -1.0 <= entry[0] <= 1.0 and abs(entry[1]) < 0.01  # Grasp starts with the tool on the table.
+    assert "object lifted >= 0.1 m when Reorient started: 0 / 3 episodes" in table
     # --resume reads every episode back instead of simulating it again.
     before = (out / "episodes.jsonl").read_text()
     assert evaluate.run(parse("--task", "tool_positioning", "--run-dir", str(run_dir), "--test", "--resume")) == 0
@@ -79,3 +84,17 @@ def test_run_dir_stages_run_the_task_variant_they_were_trained_on(tmp_path):
     assert configs == [default_config("orient"), budget_config("grasp")]
     (run_dir / "pipeline.json").write_text(json.dumps({"config": {"preset": "budget"}}))
     assert run_dir_configs(run_dir, ["orient"], [None]) == [budget_config("orient")]
+
+
+def test_block_goals_are_drawn_at_the_yaws_insert_was_trained_for():
+    """The paper's goals are at yaw 0 or 90 deg; the budget Insert is trained at 90 only, and evaluated so."""
+    from seqdex_drake.evaluation.episodes import sample_goal
+    from seqdex_drake.observation_layout import rotation_matrix
+
+    def yaw(goal):
+        R = rotation_matrix(goal[3:])
+        return round(float(np.degrees(np.arctan2(R[1, 0], R[0, 0]))))
+
+    rng = np.random.default_rng(0)
+    assert {yaw(sample_goal(5, rng)) for _ in range(30)} == {0, 90}
+    assert {yaw(sample_goal(5, rng, [90.0])) for _ in range(30)} == {90}

@@ -224,6 +224,34 @@ def test_a_new_stage_epoch_restarts_the_approach():
     assert osc.GetOutputPort("approach_active").Eval(context)[0] == 1.0
 
 
+def test_an_approach_that_cannot_arrive_hands_over_after_its_timeout():
+    """The arm is held (input fixed), so the hover point 20 cm away is never reached: without a timeout the approach
+    stays active; with one it hands over after that long, from the start and after a new stage epoch alike."""
+    osc, simulator, context = _standalone(OscParams(approach_timeout=0.2, reengage_distance=float("inf")))
+    p_WC = osc.controlled_point(np.asarray(LoadScenario(SCENARIO).robot.arm_home))
+    osc.GetInputPort("target_position").FixValue(context, p_WC - [0.0, 0.0, 0.25])
+    epoch = osc.GetInputPort("stage_epoch")
+    epoch.FixValue(context, [0.0])
+    simulator.Initialize()
+    active = osc.GetOutputPort("approach_active")
+    simulator.AdvanceTo(0.18)
+    assert active.Eval(context)[0] == 1.0
+    simulator.AdvanceTo(0.26)
+    assert active.Eval(context)[0] == 0.0
+    epoch.FixValue(context, [1.0])
+    simulator.AdvanceTo(0.3)
+    assert active.Eval(context)[0] == 1.0  # Re-armed, with a fresh timeout ...
+    simulator.AdvanceTo(0.45)
+    assert active.Eval(context)[0] == 1.0
+    simulator.AdvanceTo(0.55)
+    assert active.Eval(context)[0] == 0.0  # ... that runs out 0.2 s after the new epoch.
+    osc, simulator, context = _standalone()
+    osc.GetInputPort("target_position").FixValue(context, p_WC - [0.0, 0.0, 0.25])
+    simulator.Initialize()
+    simulator.AdvanceTo(1.0)
+    assert osc.GetOutputPort("approach_active").Eval(context)[0] == 1.0  # The default: no timeout.
+
+
 def test_nan_target_raises_clear_error():
     osc, simulator, context = _standalone()
     osc.GetInputPort("target_position").FixValue(context, [0.3, np.nan, 0.75])

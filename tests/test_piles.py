@@ -114,3 +114,28 @@ def test_a_digging_hand_does_not_blow_up_the_pile():
     assert InsideBox(env.objects.positions(env.context)).all()
     assert deepest < 0.025, f"penetration {deepest:.4f} m"
     assert fastest < 2.0, f"a block flew at {fastest:.2f} m/s"
+
+
+def _block(p, roll=0.0):
+    """A pile row [wxyz, xyz]: rolled by ``roll`` about x, at ``p``."""
+    return np.array([np.cos(roll / 2), np.sin(roll / 2), 0.0, 0.0, *p])
+
+
+def test_accessibility_order_prefers_reachable_uncovered_upright_then_side_then_high():
+    from seqdex_drake.tasks.blocks_common import accessibility_order, reachable_region
+
+    low, high = reachable_region()
+    mid = (low + high) / 2
+    q = np.array([
+        _block([*mid, 0.62]),                                   # 0: upright, reachable, uncovered
+        _block([*(mid + [0.06, 0.0]), 0.63], np.pi / 2),        # 1: on its side, reachable
+        _block([*(mid + [0.0, 0.06]), 0.66], np.pi),            # 2: upside down, reachable, highest
+        _block([low[0] - 0.05, mid[1], 0.70]),                  # 3: upright, highest, but where the hand cannot fit
+        _block([*(mid + [-0.06, 0.0]), 0.61]),                  # 4: upright, reachable, covered by 5
+        _block([*(mid + [-0.05, 0.01]), 0.64], np.pi / 2),      # 5: on its side over 4
+    ])
+    assert accessibility_order(q, [0, 1, 2, 3, 4]) == [0, 1, 2, 4, 3]
+    assert accessibility_order(q, [2, 1]) == [1, 2]
+    q[1, 6] = 0.70  # Same pose class: the higher one first.
+    q[0] = _block([*(mid + [0.12, 0.0]), 0.64], np.pi / 2)
+    assert accessibility_order(q, [0, 1]) == [1, 0]

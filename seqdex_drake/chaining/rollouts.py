@@ -13,6 +13,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from seqdex_drake.chaining.feasibility import pad_history, walk_back
+from seqdex_drake.env_state import SceneHandoffError
 
 Policy = Callable[[np.ndarray], np.ndarray]
 
@@ -158,7 +159,9 @@ def run_chain(envs: Sequence, policies: Sequence[Policy], seed: int, feasibility
     back to the second and the first with c > 1 runs next (a bypass if it is beyond i+1); if none qualifies the
     chain restarts with stage 0 from the current state (:func:`~seqdex_drake.chaining.feasibility.walk_back`, the
     rule the chain controller's switcher uses). Each selection other than i+1 uses up one switch; with none
-    left the order is sequential. The last stage's budget (or a failure) ends the episode.
+    left the order is sequential. The last stage's budget (or a failure) ends the episode. A switch back to a stage
+    whose scene cannot take the state (Building Blocks: Search's pile from a single-block scene; the whole-chain
+    scene keeps every block, the envs do not) ends it as a failure.
     ``feasibility[j-1]`` is F^j (objects with ``.model`` and ``.threshold``, e.g. a
     :class:`~seqdex_drake.chaining.feasibility_io.FeasibilityFile`; None for a missing one).
     """
@@ -174,8 +177,11 @@ def run_chain(envs: Sequence, policies: Sequence[Policy], seed: int, feasibility
                 return False
             return bool(_scores(feasibility, pad_history(observations, history))[stage + 1] > 1.0)
 
-        result = run_stage(envs[stage], policies[stage], seed=seed if state is None else None,
-                           initial_state=state, stop=early)
+        try:
+            result = run_stage(envs[stage], policies[stage], seed=seed if state is None else None,
+                               initial_state=state, stop=early)
+        except SceneHandoffError:  # A switch back to a scene that cannot hold this state (a single block handed
+            return ChainOutcome(False, stages_run, switches, steps)  # back to the pile): the episode fails.
         steps += len(result.observations) - 1
         state = result.state
         if stage == last:  # The last stage's budget (or a failure) ends the chain episode.

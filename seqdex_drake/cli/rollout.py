@@ -8,7 +8,9 @@ policy's mean action (:func:`~seqdex_drake.rl.policy_loading.load_policy`) in on
 :class:`~seqdex_drake.envs.subtask_env.SubtaskEnv` until it terminates or truncates; it succeeded if ``success``
 holds at its last step. With ``--initial-states B`` (a terminal buffer of the previous sub-task, ``seqdex
 collect``) episode ``i`` starts instead from B's successful hand-off number ``(seed + i) mod N`` (N of them), as
-forward initialization starts the sub-task: ``--seed 0 --episodes N`` plays each hand-off once.
+forward initialization starts the sub-task: ``--seed 0 --episodes N`` plays each hand-off once. ``--scene``
+runs the sub-task on another station scenario with those hand-offs (block Orient from Search's hand-offs in the
+whole pile, where the chain runs it, instead of alone in the box).
 The env is the task variant the policy was trained on (``--preset``, by default the one
 recorded in the run's ``config.json`` beside the checkpoint). Prints the success rate and the mean return;
 ``--out`` also writes them with every episode's seed, return, length and outcome as JSON (the path is checked to
@@ -58,6 +60,10 @@ def add_parser(commands) -> None:
     parser.add_argument("--initial-states", metavar="BUFFER",
                         help="start episode i from this terminal buffer's successful hand-off (seed + i) mod N "
                              "(seqdex collect --task <previous sub-task>), as forward initialization does")
+    parser.add_argument("--scene", metavar="SCENARIO",
+                        help="run the sub-task on another station scenario than its own, e.g. building_blocks/search "
+                             "(Orient in the whole pile, as the chain runs it); needs --initial-states from a "
+                             "sub-task of that scene (the task's own resets would not find their objects there)")
     parser.add_argument("--out", help="also write the results to this JSON file")
     parser.add_argument("--test", action="store_true", help="a tiny budget for smoke tests and CI")
 
@@ -143,6 +149,28 @@ def _hand_offs(args) -> list | None:
     return [buffer.state(i, EnvState) for i in range(len(buffer)) if buffer.successes[i]]
 
 
+def _scene(args) -> str | None:
+    """``--scene``, checked: a scenario that loads, given with ``--initial-states``; None without it."""
+    if args.scene is None:
+        return None
+    from seqdex_drake.scenario import LoadScenario, ScenarioError
+
+    if args.initial_states is None:
+        raise CliError(f"--scene {args.scene} needs --initial-states: the {args.task} task's own resets place their "
+                       f"objects on its own scene")
+    try:
+        LoadScenario(args.scene)
+    except (ScenarioError, OSError, ValueError) as error:
+        raise CliError(f"--scene {args.scene}: {error}") from error
+    return args.scene
+
+
+def _on_scene(config, scene: str | None):
+    import dataclasses
+
+    return config if scene is None else dataclasses.replace(config, scenario=scene)
+
+
 def run(args) -> int:
     """Runs ``seqdex rollout`` with the parsed ``args``; returns the exit code."""
     from tqdm import tqdm
@@ -160,18 +188,19 @@ def run(args) -> int:
     if out is not None:
         check_creatable(out, "--out")  # Before the rollouts, not after them.
     starts = _hand_offs(args)
+    scene = _scene(args)
     if args.zero_action:  # No policy: the zero action (a residual variant's script alone).
         if args.checkpoint or args.run_dir:
             raise CliError("--zero-action rolls out no policy; drop --checkpoint / --run-dir")
         preset = args.preset or "budget"
-        config = task_config(args.task, args.test, preset)
+        config = _on_scene(task_config(args.task, args.test, preset), scene)
         env = make_env(args.task, config)
         zeros = np.zeros(env.action_space.shape, dtype=np.float32)
         policy, checkpoint = (lambda observation: zeros), "the zero action" + (
             f" (the {config.residual} base alone)" if config.residual else "")
     else:
         preset = args.preset or run_preset(checkpoint)
-        config = task_config(args.task, args.test, preset, residual=run_residual(checkpoint))
+        config = _on_scene(task_config(args.task, args.test, preset, residual=run_residual(checkpoint)), scene)
         policy = _load(args, checkpoint)
         env = make_env(args.task, config)
         _check(args, checkpoint, policy, env)
@@ -186,7 +215,8 @@ def run(args) -> int:
           f"{preset} task variant")
     if out is not None:
         result = {"task": args.task, "checkpoint": os.fspath(checkpoint), "episodes": episodes, "seed": args.seed,
-                  "preset": preset, "initial_states": args.initial_states, "test": bool(args.test),
+                  "preset": preset, "initial_states": args.initial_states, "scene": config.scenario,
+                  "test": bool(args.test),
                   "episode_length": config.episode_length,
                   "deterministic": True, **summary, "per_episode": records}
         atomic_write(out, lambda file: file.write((json.dumps(result, indent=2) + "\n").encode()))

@@ -10,6 +10,8 @@ from seqdex_drake.evaluation.runner import ChainRunner, RunConfig
 from seqdex_drake.manual import ManualStep, goal_vector
 from seqdex_drake.modeling.blocks import BLOCK_SPECS
 
+#: How far (m) above its start an object counts as lifted at a hand-over (in hand: Grasp lifts blocks 0.3 m).
+HELD_LIFT = 0.1
 #: The transition whose feasibility scores the scatter shows (paper: Orient -> Grasp; tools: -> Reorient).
 SCATTER_STAGE = {"building_blocks": "grasp", "tool_positioning": "tool_reorient"}
 
@@ -36,31 +38,56 @@ def run_episode(runner: ChainRunner, config, key, seed: int, episode: int,
     rng = np.random.default_rng([seed, int(key), episode])
     if config.family == "building_blocks":
         runner.restore_pile(int(rng.integers(1 << 30)))
-        runner.start_block(int(key), sample_goal(int(key), rng), reset_robot=True)
+        yaws = runner.stage_configs[runner.tasks.index("insert")].goal_yaws_deg  # As Insert was trained.
+        runner.start_block(int(key), sample_goal(int(key), rng, yaws), reset_robot=True)
     else:
         runner.start_tool(int(key), rng)
     stage = runner.tasks.index(SCATTER_STAGE[config.family])
     rpy, scores = [], []
+    start_height = runner.object_pose().translation()[2]
+    entries: dict[str, list[float]] = {}  # Per stage, the object as the stage first started: [up_z, lift (m)].
 
     def record(r: ChainRunner) -> bool:
-        c = float(r.chain_output("feasibility_scores")[stage])
-        if np.isfinite(c):
-            rpy.append(RollPitchYaw(r.object_pose().rotation()).vector())
-            scores.append(c)
+        entered = r.tasks[int(r.chain_output("active_stage")[0])]
+        if entered not in entries:
+            X = r.object_pose()
+            entries[entered] = [float(X.rotation().matrix()[2, 2]), float(X.translation()[2] - start_height)]
+        if scatter:
+            c = float(r.chain_output("feasibility_scores")[stage])
+            if np.isfinite(c):
+                rpy.append(RollPitchYaw(r.object_pose().rotation()).vector())
+                scores.append(c)
         return True
 
     limit = config.time_limit or runner.episode_limit()
-    outcome = runner.run(limit, on_tick=record if scatter else None)
+    outcome = runner.run(limit, on_tick=record)
     result = {"success": bool(outcome.success), "time": outcome.time, "switches": outcome.switches,
               "last_stage": outcome.last_stage, "position_error": outcome.position_error,
-              "rotation_error": outcome.rotation_error, **({"simulator_error": outcome.simulator_error}
-                                                           if outcome.simulator_error else {})}
+              "rotation_error": outcome.rotation_error, "stage_entries": entries,
+              **({"simulator_error": outcome.simulator_error} if outcome.simulator_error else {})}
     return result, rpy, scores
 
 
-def sample_goal(block_type: int, rng: np.random.Generator) -> np.ndarray:
-    """A stud-aligned goal on the baseplate within the arm's comfortable reach (cells i 3-8, j 8-11), yaw 0/90."""
-    yaw = float(rng.choice([0.0, 90.0]))
+def handover_notes(family: str, results: list[dict]) -> list[str]:
+    """Where the episodes of a chain got to, from their ``stage_entries``: for Building Blocks, how many reached
+    Grasp with the block upright (Orient's success: its z axis within acos(0.6) of world z) and Insert with it
+    lifted at least ``HELD_LIFT`` (Grasp's); for Tool Positioning, how many reached Reorient with the tool lifted."""
+    checks = {"building_blocks": [("grasp", 0, 0.6, "upright when Grasp started"),
+                                  ("insert", 1, HELD_LIFT, f"lifted >= {HELD_LIFT} m when Insert started")],
+              "tool_positioning": [("tool_reorient", 1, HELD_LIFT, f"lifted >= {HELD_LIFT} m when Reorient "
+                                                                    f"started")]}[family]
+    notes = []
+    for task, index, bound, what in checks:
+        count = sum(1 for r in results if r.get("stage_entries", {}).get(task, [-np.inf] * 2)[index] > bound)
+        notes.append(f"object {what}: {count} / {len(results)} episodes")
+    return notes
+
+
+def sample_goal(block_type: int, rng: np.random.Generator, yaws=(0.0, 90.0)) -> np.ndarray:
+    """A stud-aligned goal on the baseplate within the arm's comfortable reach (cells i 3-8, j 8-11), at one of
+    ``yaws`` (deg; the paper's 0 / 90, or those the chain's Insert policy was trained for,
+    ``TaskConfig.goal_yaws_deg``: the budget variant's 90 only)."""
+    yaw = float(rng.choice([float(y) for y in yaws]))
     nx, ny = BLOCK_SPECS[block_type].cells
     span = (ny, nx) if yaw else (nx, ny)
     cell = [int(rng.integers(3, 9 - span[0] + 1)), int(rng.integers(8, 12 - span[1] + 1))]

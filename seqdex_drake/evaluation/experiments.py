@@ -17,7 +17,13 @@ from pathlib import Path
 
 import numpy as np
 
-from seqdex_drake.evaluation.episodes import SCATTER_STAGE, run_config, run_episode, sample_goal  # noqa: F401
+from seqdex_drake.evaluation.episodes import (  # noqa: F401
+    SCATTER_STAGE,
+    handover_notes,
+    run_config,
+    run_episode,
+    sample_goal,
+)
 from seqdex_drake.evaluation.plots import write_pose_scatter
 from seqdex_drake.evaluation.runner import ChainRunner
 from seqdex_drake.evaluation.tables import seed_rates, write_table
@@ -178,7 +184,8 @@ class Evaluation:
         untrained = self.untrained or []
         notes = [f"{self.config.episodes} episode(s) per object and seed, seeds {list(self.config.seeds)}; "
                  f"success rate mean ± std over seeds",
-                 f"untrained stages: {', '.join(untrained)}" if untrained else "every stage trained"]
+                 f"untrained stages: {', '.join(untrained)}" if untrained else "every stage trained",
+                 *handover_notes(self.config.family, results)]
         table = "table1_building_blocks" if self.config.family == "building_blocks" else "table2_tool_positioning"
         return list(write_table(self.out / table, f"Success rate, {self.config.family} (run {self.config.run_dir})",
                                 [self.config.label or f"ours (max {self.config.max_switches} switches)"], columns,

@@ -33,7 +33,7 @@ from seqdex_drake.scenario import LoadScenario
 from seqdex_drake.scene.objects import SceneObjects
 from seqdex_drake.scene.piles import BOX_CENTER, BOX_INNER_HALF, LoadPiles
 from seqdex_drake.station import MakeControllerPlant, MakeStation, RefreshSampledOutputs
-from seqdex_drake.tasks.blocks_common import BOX_MARGIN
+from seqdex_drake.tasks.blocks_common import accessibility_order
 from seqdex_drake.tasks.insert import YAW_FLIP
 from seqdex_drake.tasks.registry import default_config
 from seqdex_drake.tasks.rewards import quaternion_angle
@@ -60,6 +60,19 @@ REENGAGE = float("inf")
 #: the box walls' tops are at 0.765 m, and a straight line from the baseplate ran the hanging fingers into the near
 #: wall (the hand stopped against it, and the next block's Search never started).
 BLOCK_TRAVEL_HEIGHT = 0.9
+
+#: Stages entered with the approach first (``ChainParams.approach_stages``): block Orient and Grasp were trained from
+#: resets with the open hand 5 cm above the block, and Search leaves the hand 14-17 cm aside of it (Orient's
+#: stylus approach from there used up its 75 steps in the pile), Orient the fingertip above the block's side.
+APPROACH_STAGES = {"building_blocks": ("orient", "grasp")}
+#: Stages entered with the approach carrying the held block to this height (m) above its goal
+#: (``ChainParams.carry_stages``): Insert's script carries it 3 cm above its goal before it lowers it, and the way
+#: there from Grasp's lift (about 1.1 m high, anywhere over the box) was more than its 125 steps at the wrist's
+#: 0.3 m/s: from 60 Grasp hand-offs Insert succeeded in none (``seqdex pipeline``'s transitions).
+CARRY_STAGES = {"building_blocks": (("insert", 0.03),)}
+#: An approach that has not reached its hover point after this many seconds hands over where the hand is (fingers
+#: curled by an untrained Search caught on the pile and held the Orient approach, and the chain, for good).
+APPROACH_TIMEOUT = 3.0
 
 
 class ChainRunError(ValueError):
@@ -183,7 +196,10 @@ class ChainRunner:
                                                      stage_steps=config.stage_steps),
                              untrained_seed=config.seed, stage_configs=stage_configs,
                              reengage_distance=REENGAGE,
-                             travel_height=BLOCK_TRAVEL_HEIGHT if config.family == "building_blocks" else 0.0)
+                             travel_height=BLOCK_TRAVEL_HEIGHT if config.family == "building_blocks" else 0.0,
+                             approach_stages=APPROACH_STAGES.get(config.family, ()),
+                             approach_timeout=APPROACH_TIMEOUT,
+                             carry_stages=CARRY_STAGES.get(config.family, ()))
         if config.untrained_hidden_sizes is not None:
             params.untrained_hidden_sizes = tuple(config.untrained_hidden_sizes)
         builder = DiagramBuilder()
@@ -245,18 +261,19 @@ class ChainRunner:
         self._used: set[str] = set()
 
     def pick_block(self, block_type: int) -> str:
-        """The unused block of ``block_type`` to fetch next: the highest one whose centre is at least
-        ``BOX_MARGIN`` inside the box walls (else the highest one in the box)."""
+        """The unused block of ``block_type`` to fetch next, the easiest first
+        (:func:`~seqdex_drake.tasks.blocks_common.accessibility_order`: where the hovering hand fits, uncovered,
+        upright or on a side, highest), as a perception system choosing among identical blocks would."""
         if block_type not in BLOCK_SPECS:
             raise ChainRunError(f"unknown block type {block_type}; valid types: {sorted(BLOCK_SPECS)}")
         q = self.objects.positions(self.context)
-        names = [n for n in self.objects.names if n.startswith(f"block_{block_type}_") and n not in self._used]
-        if not names:
+        rows = [self.objects.index(n) for n in self.objects.names
+                if n.startswith(f"block_{block_type}_") and n not in self._used]
+        if not rows:
             raise ChainRunError(f"no block of type {block_type} left in the box (all 9 used)")
-        p = np.array([q[self.objects.index(n), 4:] for n in names])
-        inside = np.all(np.abs(p[:, :2] - BOX_CENTER[:2]) <= BOX_INNER_HALF - BOX_MARGIN, axis=1)
-        order = np.lexsort((-p[:, 2], ~inside))  # Inside the margin first, then highest.
-        return names[int(order[0])]
+        blocks = [self.objects.index(n) for n in self.objects.names if n.startswith("block_")]
+        order = accessibility_order(q[blocks], [blocks.index(row) for row in rows])
+        return self.objects.names[blocks[order[0]]]
 
     def _reset_robot(self, arm_q=None) -> None:
         plant, context = self.plant, self.plant_context
@@ -291,6 +308,11 @@ class ChainRunner:
         self.objects.set_frozen(self.context, frozen & ~(near & in_box))
         self._start(name, goal, reset_robot)
         return name
+
+    def restart(self) -> None:
+        """Restarts the chain (stage 0, the approach first) on the current target and goal, the scene as it is now
+        (e.g. after moving objects by hand)."""
+        self._start(self.target, self.goal, reset_robot=False)
 
     def start_tool(self, tool_index: int, rng: np.random.Generator) -> str:
         """Lays tool ``tool_index`` (0 hammer: trained; 1 spatula, 2 spoon: unseen) on the table at a random yaw
@@ -381,7 +403,10 @@ class ChainRunner:
                        rotation_error=errors[1], simulator_error=simulator_error)
 
     def episode_limit(self) -> float:
-        """A time limit covering every stage's budget once per allowed switch, plus 3 s of approach."""
+        """A time limit covering every stage's budget once per allowed switch, plus ``APPROACH_TIMEOUT`` per
+        approach (the first, and one per approach or carry stage)."""
         switcher = self.controller.GetSubsystemByName("switcher")
+        family = self.config.family
+        approaches = 1 + len(APPROACH_STAGES.get(family, ())) + len(CARRY_STAGES.get(family, ()))
         return float(np.sum(switcher.stage_budgets)) * (1 + self.config.max_switches) * \
-            self.scenario.control_period + 3.0
+            self.scenario.control_period + APPROACH_TIMEOUT * approaches

@@ -87,6 +87,19 @@ class ChainParams:
     travel_height: float = 0.0
     """The approach's ``OscParams.travel_height``: a world height (m) the hand crosses at between workspaces (the
     Building Blocks chain: over the box walls between the baseplate and the pile); 0: straight lines."""
+    approach_timeout: float = float("inf")
+    """The approach's ``OscParams.approach_timeout``: seconds after which an approach that has not reached the hover
+    point hands over where the hand is (the stage's clock stops while the approach runs)."""
+    approach_stages: tuple[str, ...] = ()
+    """Tasks whose stage, entered in sequence, starts with the approach bringing the hand back to the hover point
+    (where its policy's resets put it), as after a feasibility switch. Empty: the previous stage's terminal state
+    is the next one's start (the paper's forward initialization)."""
+    carry_stages: tuple[tuple[str, float], ...] = ()
+    """(task, height) pairs: stages with a goal that, entered in sequence, start with the approach carrying the held
+    object until its origin is ``height`` (m) above its goal, the previous stage's hand kept closed
+    (:class:`~seqdex_drake.systems.chain_parts.ApproachTarget`, ``StageRouter(hold_hand=)``). Block Insert: from
+    Grasp's lift (about 1.1 m, anywhere over the box) to the baseplate is more than its 125 steps at the wrist's
+    0.3 m/s."""
     stage_configs: Sequence | None = None
     """Each stage's :class:`~seqdex_drake.tasks.base.TaskConfig` as its policy was trained (EMA, wrist step,
     episode length, scripted phases; ``seqdex_drake.chaining.shipped`` records them); None: the tasks' defaults."""
@@ -262,19 +275,26 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
         policies.append(builder.AddNamedSystem(f"policy.{i}", system))
     # A stage that observes its progress: its F reads histories with the progress appended (the switcher adds it).
     time_steps = tuple(config.episode_length if config.observe_time else 0 for config in configs)
+    carry = dict(params.carry_stages)
     f_files = [_load_f(i, tasks, entry, [size + (1 if t else 0) for size, t in zip(sizes, time_steps, strict=True)])
                for i, entry in enumerate(feasibility)]
-    switcher_params = dataclasses.replace(params.switcher, inference=params.inference, time_steps=time_steps)
+    switcher_params = dataclasses.replace(params.switcher, inference=params.inference, time_steps=time_steps,
+                                          approach_on_entry=tuple(task in params.approach_stages or task in carry
+                                                                  for task in tasks))
     switcher = builder.AddNamedSystem("switcher", FeasibilitySwitcher(
         f_files, sizes, [config.episode_length for config in configs], period, switcher_params))
-    router = builder.AddNamedSystem("router", StageRouter(len(tasks), period))
-    approach = builder.AddNamedSystem("approach_target", ApproachTarget(plant, [goal for goal, _ in layouts]))
     osc_params = params.osc or OscParams(p_PalmPc_Palm=tuple(p_PalmHc_Palm), hover_height=configs[0].hover_height,
                                          solve_while_handed_over=False)
+    router = builder.AddNamedSystem("router", StageRouter(len(tasks), period, [task in carry for task in tasks]))
+    hand = (int(plant.GetBodyByName("palm").index()), osc_params.p_PalmPc_Palm, osc_params.hover_height)
+    approach = builder.AddNamedSystem("approach_target", ApproachTarget(
+        plant, [goal for goal, _ in layouts], [carry.get(task, np.nan) for task in tasks], hand))
     if params.reengage_distance is not None:
         osc_params = dataclasses.replace(osc_params, reengage_distance=params.reengage_distance)
     if params.travel_height > 0.0:
         osc_params = dataclasses.replace(osc_params, travel_height=params.travel_height)
+    if params.approach_timeout < float("inf"):
+        osc_params = dataclasses.replace(osc_params, approach_timeout=params.approach_timeout)
     controller_plant = MakeControllerPlant(scenario)
     home = np.asarray(scenario.robot.arm_home, dtype=float)
     osc = builder.AddNamedSystem("osc", OperationalSpaceController(
@@ -308,8 +328,9 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
             builder.Connect(assemblers[layouts[i - 1]].GetOutputPort("observation"),
                             switcher.GetInputPort(f"observation.{i - 1}"))
     builder.Connect(osc.GetOutputPort("approach_active"), switcher.GetInputPort("approach_active"))
-    # A feasibility switch (re)starts a stage: the approach brings the hand back above the target first.
-    builder.Connect(switcher.GetOutputPort("switches_used"), osc.GetInputPort("stage_epoch"))
+    # A feasibility switch (or entering an approach stage) (re)starts a stage: the approach brings the hand back
+    # above the target first.
+    builder.Connect(switcher.GetOutputPort("stage_epoch"), osc.GetInputPort("stage_epoch"))
     builder.Connect(switcher.GetOutputPort("active_stage"), router.GetInputPort("stage"))
     builder.Connect(osc.GetOutputPort("approach_active"), router.GetInputPort("approach_active"))
     builder.Connect(switcher.GetOutputPort("active_stage"), approach.GetInputPort("stage"))

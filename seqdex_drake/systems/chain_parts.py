@@ -43,14 +43,22 @@ class StageRouter(LeafSystem):
     ``raw_action``, ``hand_target``, ``wrist_translation``, ``allegro.desired_state`` (32: hand target, zero
     velocities), ``policy_in_charge`` (1) and ``executing_stage`` (1: the stage whose policy ran last tick).
 
+    While the approach runs for a stage flagged in ``hold_hand`` (a carry: the hand holds the object the previous
+    stage grasped), the router keeps routing the previous stage's commands, so the hand stays closed; otherwise it
+    routes the chosen stage's (its policy's held initial command: the hand as the episode started).
+
     Args:
         num_stages: K.
         control_period: seconds between updates.
+        hold_hand: per stage, whether its approach keeps the previous stage's hand (default: none).
     """
 
-    def __init__(self, num_stages: int, control_period: float):
+    def __init__(self, num_stages: int, control_period: float, hold_hand=None):
         super().__init__()
         self.num_stages = int(num_stages)
+        self._hold_hand = [False] * self.num_stages if hold_hand is None else [bool(h) for h in hold_hand]
+        if len(self._hold_hand) != self.num_stages:
+            raise ValueError(f"hold_hand needs one flag per stage ({self.num_stages}), got {hold_hand}")
         self._stage_port = self.DeclareVectorInputPort("stage", 1)
         self._approach_port = self.DeclareVectorInputPort("approach_active", 1)
         self._ports = {name: [self.DeclareVectorInputPort(f"{name}.{i}", size) for i in range(num_stages)]
@@ -98,12 +106,25 @@ class StageRouter(LeafSystem):
 
     def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
         stage, in_charge = self._choice(context)
+        if not in_charge and self._hold_hand[stage]:  # A carry: the previous stage's hand holds the object.
+            stage = int(context.get_discrete_state(self._state_index).GetAtIndex(0))
         discrete_state.set_value(self._state_index, np.array([stage, float(in_charge)]))
+
+
+#: A carried object's origin is at most this far (m) from the approach's controlled point (the hand centre); farther,
+#: it is not in hand and the approach aims at the plain goal.
+CARRY_REACH = 0.2
 
 
 class ApproachTarget(LeafSystem):
     """The approach controller's target: the goal position for stages with a goal pose, else the target
     object's centre of mass plus the target's ``approach_offset`` (world, m).
+
+    A *carry* stage (``carry_heights[i]`` finite, a stage with a goal) instead aims so that the held object's origin
+    comes to ``carry_height`` above its goal: the target is ``goal + carry_height z + (p_WC - p_WO) - hover_height
+    z``, with p_WC the approach's controlled point (``hand``: the palm body and the point's offset in it) and p_WO
+    the object's origin, so the approach's hover point (target + ``hover_height`` z) puts the object there. An
+    object farther than ``CARRY_REACH`` from the controlled point is not in hand: the target is then the goal.
 
     Input ports: ``body_poses`` (the station's), ``stage`` (1). Output port: ``target_position`` (3).
     The chain target is an abstract parameter (:meth:`set_target`), shared with the observation assemblers.
@@ -111,12 +132,23 @@ class ApproachTarget(LeafSystem):
     Args:
         plant: the station's plant (body centres of mass; not kept).
         stage_has_goal: per stage, whether its target is the goal pose (Insert, tool Reorient).
+        carry_heights: per stage, the carry height (m) or NaN (no carry); default: no carry.
+        hand: ``(palm body index, p_PalmC_Palm, hover_height)`` of the approach, needed with carry stages.
     """
 
-    def __init__(self, plant: MultibodyPlant, stage_has_goal: list[bool]):
+    def __init__(self, plant: MultibodyPlant, stage_has_goal: list[bool], carry_heights=None, hand=None):
         super().__init__()
         self._p_BoBcm = [plant.get_body(BodyIndex(i)).default_com() for i in range(plant.num_bodies())]
         self._has_goal = [bool(g) for g in stage_has_goal]
+        self._carry = np.full(len(self._has_goal), np.nan) if carry_heights is None else \
+            np.asarray(carry_heights, dtype=float)
+        carried = np.isfinite(self._carry)
+        if len(self._carry) != len(self._has_goal) or np.any(carried & ~np.asarray(self._has_goal, dtype=bool)):
+            raise ValueError(f"carry_heights needs one entry per stage, finite only for stages with a goal; got "
+                             f"{carry_heights} for stages with goals {self._has_goal}")
+        if np.any(carried) and hand is None:
+            raise ValueError("carry stages need hand = (palm body index, p_PalmC_Palm, hover_height)")
+        self._hand = None if hand is None else (int(hand[0]), np.asarray(hand[1], dtype=float), float(hand[2]))
         default_poses = [RigidTransform()] * plant.num_bodies()
         self._poses_port = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make(default_poses))
         self._stage_port = self.DeclareVectorInputPort("stage", 1)
@@ -138,8 +170,16 @@ class ApproachTarget(LeafSystem):
             raise RuntimeError("the chain has no target: call SetChainTarget(controller, root_context, body) "
                                "before simulating")
         stage = int(round(self._stage_port.Eval(context)[0]))
+        goal = np.asarray(target.goal, dtype=float)[:3]
+        if self._has_goal[stage] and np.isfinite(self._carry[stage]):
+            poses = self._poses_port.Eval(context)
+            palm, p_PalmC, hover = self._hand
+            p_WC, p_WO = poses[palm] @ p_PalmC, poses[target.object_body].translation()
+            if np.linalg.norm(p_WC - p_WO) <= CARRY_REACH:  # Held: carry it. Not held: the goal, as without carry.
+                output.SetFromVector(goal + [0.0, 0.0, self._carry[stage] - hover] + (p_WC - p_WO))
+                return
         if self._has_goal[stage]:
-            output.SetFromVector(np.asarray(target.goal, dtype=float)[:3])
+            output.SetFromVector(goal)
             return
         X_WB = self._poses_port.Eval(context)[target.object_body]
         output.SetFromVector(X_WB @ self._p_BoBcm[target.object_body] + target.approach_offset)

@@ -27,7 +27,8 @@ Handover (output ``approach_active``): 1 while the controller is in charge, 0 on
 within ``hover_tolerance`` of the hover point or within ``handover_distance`` of the target itself (the
 policy then moves the hand close to the target without the OSC pulling it back). It turns 1 again only when
 the target is farther than ``reengage_distance`` from the controlled point (a new or moved target), or when the
-optional ``stage_epoch`` input changes (a chain's stage restarts: it starts from the hover point again). The
+optional ``stage_epoch`` input changes (a chain's stage restarts: it starts from the hover point again); an
+approach that has not ended after ``approach_timeout`` seconds hands over where the hand is. The
 controller keeps tracking the hover point either way (unless ``solve_while_handed_over`` is False); a switcher
 downstream chooses whose command to use.
 
@@ -120,6 +121,7 @@ class OperationalSpaceController(LeafSystem):
         self._epoch_port = self.DeclareVectorInputPort("stage_epoch", 1)  # Optional.
         self._status_index = self.DeclareDiscreteState(np.array([1.0, 0.0]))  # approach_active, qp_failures
         self._epoch_index = self.DeclareDiscreteState(np.zeros(1))  # The stage_epoch seen last tick.
+        self._since_index = self.DeclareDiscreteState(np.zeros(1))  # When the current approach started.
         self.DeclareStateOutputPort("franka.desired_state", self._command_index)
         self.DeclareVectorOutputPort("approach_active", 1, self._calc_active)
         self.DeclareVectorOutputPort("qp_failures", 1, self._calc_failures)
@@ -236,6 +238,7 @@ class OperationalSpaceController(LeafSystem):
         discrete_state.set_value(self._command_index, np.r_[q, np.zeros(NUM_ARM)])
         discrete_state.set_value(self._status_index, np.array([1.0, 0.0]))
         discrete_state.set_value(self._epoch_index, self._epoch(context))
+        discrete_state.set_value(self._since_index, np.array([context.get_time()]))
         self._guess[:] = 0.0
 
     def _epoch(self, context: Context) -> np.ndarray:
@@ -255,8 +258,14 @@ class OperationalSpaceController(LeafSystem):
         if epoch[0] != discrete_state.get_value(self._epoch_index)[0]:  # A stage (re)started: approach again.
             status[0] = 1.0
             discrete_state.set_value(self._epoch_index, epoch)
+            discrete_state.set_value(self._since_index, np.array([context.get_time()]))
         was_active = bool(status[0])
         status[0] = self._next_active(was_active, p_WC, p_WH, p_WT)
+        now = context.get_time()
+        if status[0] and not was_active:
+            discrete_state.set_value(self._since_index, np.array([now]))
+        elif status[0] and now - discrete_state.get_value(self._since_index)[0] > p.approach_timeout:
+            status[0] = 0.0  # Timed out: the stage starts wherever the hand got to.
         if not (p.solve_while_handed_over or was_active or status[0]):
             discrete_state.set_value(self._status_index, status)  # Handed over: the command is held.
             return

@@ -19,6 +19,10 @@ class OscParams:
     """The approach ends once the controlled point is within this distance (m) of the hover point."""
     reengage_distance: float = 0.10
     """After a handover the approach restarts only when the target is farther than this (m) from the hand."""
+    approach_timeout: float = float("inf")
+    """Seconds after which an approach hands over wherever the hand is: a hover point the hand cannot reach (the
+    fingers caught on the pile) would otherwise keep the approach active, and a chain's stage clock stopped, for
+    good. inf: no limit."""
     travel_height: float = 0.0
     """If > 0: a world height (m) the controlled point travels at while it is farther than ``travel_xy`` from the
     hover point horizontally; it first rises in place to it, then crosses, then descends. A path over obstacles

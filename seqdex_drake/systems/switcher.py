@@ -85,6 +85,10 @@ class SwitcherParams:
     0: none). Its F^{i+1} was fitted on env observations that end with that progress, so the switcher appends
     it to the stage's history rows: ticks in the stage / time_steps while the stage executes (as the env's step
     count), 1 once another stage executes (the stage is over). None: no stage observes its progress."""
+    approach_on_entry: tuple[bool, ...] | None = None
+    """Per stage, whether a sequential advance into it restarts the approach (output ``stage_epoch`` changes):
+    the hand is brought back to the hover point its policy's resets start from. A feasibility switch always
+    restarts it. None: no stage's."""
 
 
 class FeasibilitySwitcher(LeafSystem):
@@ -93,7 +97,9 @@ class FeasibilitySwitcher(LeafSystem):
     Input ports: ``observation.<i>`` for every stage i whose successor has an F (stage i's observation, the
     history F^{i+1} reads), ``stage_success`` (1, optional), ``approach_active`` (1, optional).
     Output ports: ``active_stage`` (1, the stage index 0..K-1 to execute), ``feasibility_scores`` (K, c^i;
-    NaN for stage 0 and stages without F), ``switches_used`` (1).
+    NaN for stage 0 and stages without F), ``switches_used`` (1), ``stage_epoch`` (1: changes whenever a stage
+    starts from the hover point: a feasibility switch, or a sequential advance into a stage flagged in
+    ``SwitcherParams.approach_on_entry``; feed it to the approach controller's ``stage_epoch``).
 
     Args:
         feasibility: K entries; entry 0 must be None, entry i is None (no F) or an object with ``model``
@@ -126,6 +132,10 @@ class FeasibilitySwitcher(LeafSystem):
         if params.inference not in ("numpy", "torch"):
             raise ValueError(f"inference must be 'numpy' or 'torch', got {params.inference!r}")
         self._budgets = np.asarray(budgets, dtype=int)
+        entry = [False] * count if params.approach_on_entry is None else [bool(e) for e in params.approach_on_entry]
+        if len(entry) != count:
+            raise ValueError(f"approach_on_entry needs one flag per stage ({count}), got {params.approach_on_entry}")
+        self._approach_on_entry = entry
         self._time_steps = [0] * count if params.time_steps is None else [int(t) for t in params.time_steps]
         if len(self._time_steps) != count or min(self._time_steps) < 0:
             raise ValueError(f"time_steps needs one entry >= 0 per stage ({count}), got {params.time_steps}")
@@ -155,10 +165,13 @@ class FeasibilitySwitcher(LeafSystem):
         self._approach_port = self.DeclareVectorInputPort("approach_active", 1)
         self._status_index = self.DeclareDiscreteState(np.zeros(3))  # stage, steps in stage, switches used
         self._scores_index = self.DeclareDiscreteState(np.full(count, np.nan))
+        self._entries_index = self.DeclareDiscreteState(np.zeros(1))  # Sequential advances into approach stages.
         status = {self.discrete_state_ticket(self._status_index)}
         self.DeclareVectorOutputPort("active_stage", 1, self._calc_stage, prerequisites_of_calc=status)
         self.DeclareStateOutputPort("feasibility_scores", self._scores_index)
         self.DeclareVectorOutputPort("switches_used", 1, self._calc_switches, prerequisites_of_calc=status)
+        self.DeclareVectorOutputPort("stage_epoch", 1, self._calc_epoch,
+                                     prerequisites_of_calc=status | {self.discrete_state_ticket(self._entries_index)})
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         self.DeclarePeriodicDiscreteUpdateEvent(control_period, 0.0, self._update)
 
@@ -253,6 +266,7 @@ class FeasibilitySwitcher(LeafSystem):
             discrete_state.set_value(index, np.zeros(1 + int(np.prod(self._history_shape[stage]))))
         discrete_state.set_value(self._status_index, np.zeros(3))
         discrete_state.set_value(self._scores_index, np.full(self.num_stages, np.nan))
+        discrete_state.set_value(self._entries_index, np.zeros(1))
 
     def _compute(self, histories: dict, stages: Sequence[int], scores: np.ndarray) -> None:
         """Writes c^i of ``stages`` (those with an F) into ``scores``; bank F's in one batched pass when all of
@@ -291,9 +305,16 @@ class FeasibilitySwitcher(LeafSystem):
         discrete_state.set_value(self._scores_index, scores)
         discrete_state.set_value(self._status_index, np.array(
             [target, 0 if restart else steps, switches + int(switched)], dtype=float))
+        if not switched and target != stage and self._approach_on_entry[target]:
+            entries = context.get_discrete_state(self._entries_index).get_value()[0]
+            discrete_state.set_value(self._entries_index, np.array([entries + 1.0]))
 
     def _calc_stage(self, context: Context, output: BasicVector) -> None:
         output.SetAtIndex(0, context.get_discrete_state(self._status_index).GetAtIndex(_STAGE))
 
     def _calc_switches(self, context: Context, output: BasicVector) -> None:
         output.SetAtIndex(0, context.get_discrete_state(self._status_index).GetAtIndex(_SWITCHES))
+
+    def _calc_epoch(self, context: Context, output: BasicVector) -> None:
+        switches = context.get_discrete_state(self._status_index).GetAtIndex(_SWITCHES)
+        output.SetAtIndex(0, switches + context.get_discrete_state(self._entries_index).GetAtIndex(0))

@@ -43,14 +43,45 @@ def resting_pose(block_type: int, roll: float, pitch: float, yaw: float, p_xy: n
     return RigidTransform(rotation, [p_xy[0], p_xy[1], floor - lowest + 0.0005])
 
 
-def sample_box_xy(rng: np.random.Generator) -> np.ndarray:
-    """A position on the box floor at least ``BOX_MARGIN`` from the inner walls, at least ``OPEN_HAND_REACH`` from
-    the far (+x) wall and ``PALM_BACK_REACH`` from the near one, where the hovering open hand must fit."""
+def reachable_region() -> tuple[np.ndarray, np.ndarray]:
+    """The (low, high) corners of where a block's centre may be for the hovering open hand to fit: at least
+    ``BOX_MARGIN`` from the inner walls, ``OPEN_HAND_REACH`` from the far (+x) wall, ``PALM_BACK_REACH`` from the
+    near one."""
     low = BOX_CENTER[:2] - (BOX_INNER_HALF - BOX_MARGIN)
     high = BOX_CENTER[:2] + (BOX_INNER_HALF - BOX_MARGIN)
     low[0] = max(low[0], BOX_CENTER[0] - BOX_INNER_HALF[0] + PALM_BACK_REACH)
     high[0] = min(high[0], BOX_CENTER[0] + BOX_INNER_HALF[0] - OPEN_HAND_REACH)
-    return rng.uniform(low, high)
+    return low, high
+
+
+def sample_box_xy(rng: np.random.Generator) -> np.ndarray:
+    """A position on the box floor in :func:`reachable_region`, where the hovering open hand must fit."""
+    return rng.uniform(*reachable_region())
+
+
+#: A block whose centre has another block's centre within this horizontal distance (m) and more than
+#: ``COVER_RISE`` (m) higher is covered.
+COVER_RADIUS, COVER_RISE = 0.05, 0.01
+
+
+def accessibility_order(q_blocks: np.ndarray, candidates: list[int]) -> list[int]:
+    """``candidates`` (rows of ``q_blocks``, an (N, 7) [wxyz, xyz] pile) ordered easiest to fetch first: centre
+    in :func:`reachable_region` before outside it, uncovered (no block centre within ``COVER_RADIUS`` and
+    ``COVER_RISE`` above) before covered, then by resting pose: upright (tilt < 20 deg: Orient has nothing to do),
+    on a long side (70-110 deg: Orient's quarter roll), any other; then highest first."""
+    low, high = reachable_region()
+    keys = []
+    for i in candidates:
+        w, x, y, z = q_blocks[i, :4] / np.linalg.norm(q_blocks[i, :4])
+        up_z = 1.0 - 2.0 * (x * x + y * y)  # The block's z axis, world z component.
+        tilt = np.degrees(np.arccos(np.clip(up_z, -1.0, 1.0)))
+        p = q_blocks[i, 4:]
+        inside = bool(np.all(p[:2] >= low) and np.all(p[:2] <= high))
+        near = np.linalg.norm(q_blocks[:, 4:6] - p[:2], axis=1) < COVER_RADIUS
+        covered = bool(np.any(near & (q_blocks[:, 6] > p[2] + COVER_RISE)))
+        pose = 0 if tilt < 20.0 else 1 if 70.0 <= tilt <= 110.0 else 2
+        keys.append((not inside, covered, pose, -p[2], i))
+    return [key[-1] for key in sorted(keys)]
 
 
 def place_single_block(env, rng: np.random.Generator, orientations: list[str]) -> str:
