@@ -1,0 +1,65 @@
+"""The Building Blocks chain runner: which block it fetches, and where each stage starts."""
+
+import numpy as np
+
+from seqdex_drake.evaluation.runner import APPROACH_STAGES, CARRY_STAGES, ChainRunner, RunConfig
+from seqdex_drake.manual import LoadManual, goal_vector
+from seqdex_drake.tasks.blocks_common import reachable_region
+
+
+def test_blocks_are_fetched_where_the_hand_fits_and_every_stage_after_search_starts_with_an_approach():
+    """Orient and Grasp start from the hover point over the block (``APPROACH_STAGES``), Insert with the approach
+    carrying the block (``CARRY_STAGES``; an untrained Grasp holds none, so it goes to the goal's hover point)."""
+    runner = ChainRunner(RunConfig(family="building_blocks", max_switches=0, stage_steps=(3, 3, 3, 3),
+                                   untrained_hidden_sizes=(16,), seed=0))
+    step = LoadManual("small_wall").steps[0]
+    name = runner.start_block(step.block_type, goal_vector(step))
+    low, high = reachable_region()
+    p = runner.object_pose().translation()
+    assert name.startswith(f"block_{step.block_type}_") and np.all(p[:2] >= low) and np.all(p[:2] <= high)
+    seen = []
+
+    def on_tick(r) -> bool:
+        seen.append((int(r.chain_output("active_stage")[0]), bool(r.chain_output("approach_active")[0] > 0.5)))
+        return seen[-1] != (3, False) or len([s for s in seen if s[0] == 3]) < 3  # Until Insert's policy acts.
+
+    runner.run(30.0, on_tick=on_tick, stop_on_success=False)
+    first = {stage: next(i for i, (s, _) in enumerate(seen) if s == stage) for stage in range(4)}
+    # The approach re-arms on the tick after the stage changes (the controller reads the switcher's last output).
+    approached = [runner.tasks[i] for i in range(4) if any(active for _, active in seen[first[i]:first[i] + 2])]
+    carried = [task for task, _ in CARRY_STAGES["building_blocks"]]
+    assert approached == ["search", *APPROACH_STAGES["building_blocks"], *carried] == runner.tasks
+    for stage in (1, 2, 3):  # The approach ran for a while before each policy acted.
+        assert sum(1 for s, active in seen if s == stage and active) > 10
+
+
+def test_the_shipped_chain_lifts_a_block_and_carries_it_over_its_goal():
+    """With the shipped checkpoints: a block standing alone in the box (Orient's success, the pile parked) is
+    pinched and lifted by Grasp, and Insert's approach carries it, in hand, to 3 cm over its goal
+    (``CARRY_STAGES``): a physical check of the block's pose as Insert's policy takes over."""
+    from pathlib import Path
+
+    from seqdex_drake.evaluation.runner import CARRY_STAGES
+    from seqdex_drake.tasks.blocks_common import resting_pose
+
+    shipped = Path(__file__).resolve().parents[1] / "checkpoints" / "building_blocks"
+    runner = ChainRunner(RunConfig(family="building_blocks", run_dir=str(shipped), max_switches=0,
+                                   stage_steps=(1, 1, 150, 125)))
+    assert runner.untrained == []
+    step = LoadManual("small_wall").steps[0]
+    name = runner.start_block(step.block_type, goal_vector(step))
+    runner.objects.park(runner.context)
+    X_WB = resting_pose(step.block_type, 0.0, 0.0, np.pi / 2 + 0.1, np.array([0.24, 0.19]))
+    runner.objects.set_pose(runner.context, name, X_WB, frozen=False)
+    runner.restart()
+    handed = []
+
+    def on_tick(r) -> bool:  # Insert's policy acts once its stage executes with the approach over.
+        if r.chain_output("executing_stage")[0] == 3 and r.chain_output("approach_active")[0] < 0.5:
+            handed.append(r.object_pose().translation())
+        return not handed
+
+    runner.run(20.0, on_tick=on_tick, stop_on_success=False)
+    assert handed, "Insert's policy never took over"
+    height = dict(CARRY_STAGES["building_blocks"])["insert"]
+    np.testing.assert_allclose(handed[0], runner.goal[:3] + [0.0, 0.0, height], atol=0.015)
