@@ -2,6 +2,7 @@
 hand-built F's (forward, bypass, recovery, restart, switch cap, sequential fallback), checkpoint discovery, and
 the chain controller closed around a real station."""
 
+import dataclasses
 import types
 
 import numpy as np
@@ -332,6 +333,10 @@ def test_chain_controller_runs_with_a_station(tmp_path):
         MakeChainController(scenario, [("search", None)], params=params)
     with pytest.raises(ValueError, match=r"insert\.pt.*orient"):
         MakeChainController(scenario, stages, [None, f_path, None], params=params)  # F^insert scores grasp histories
+    for bad in (dict(approach_stages=("grasps",)), dict(carry_stages=(("lift", 0.03),)), dict(carry_stages=(
+            ("grasp", 0.03),))):  # A misspelt stage, one not in the chain, one without a goal to carry to.
+        with pytest.raises(ValueError, match="not stages of this chain|finite only for stages with a goal"):
+            MakeChainController(scenario, stages, params=dataclasses.replace(params, **bad))
     builder = DiagramBuilder()
     station = builder.AddNamedSystem("station", MakeStation(scenario))
     controller = builder.AddNamedSystem("chain", MakeChainController(scenario, stages, [None, None, f_path], params))

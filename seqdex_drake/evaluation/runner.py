@@ -70,9 +70,11 @@ APPROACH_STAGES = {"building_blocks": ("orient", "grasp")}
 #: there from Grasp's lift (about 1.1 m high, anywhere over the box) was more than its 125 steps at the wrist's
 #: 0.3 m/s: from 60 Grasp hand-offs Insert succeeded in none (``seqdex pipeline``'s transitions).
 CARRY_STAGES = {"building_blocks": (("insert", 0.03),)}
-#: An approach that has not reached its hover point after this many seconds hands over where the hand is (fingers
-#: curled by an untrained Search caught on the pile and held the Orient approach, and the chain, for good).
+#: The time (s) an episode's limit allows per approach; for Building Blocks also the approach's timeout, after which
+#: it hands over where the hand is (fingers curled by an untrained Search caught on the pile and held the Orient
+#: approach, and the chain, for good). Tool approaches have no timeout (their figures were measured without).
 APPROACH_TIMEOUT = 3.0
+TIMEOUT_FAMILIES = ("building_blocks",)
 
 
 class ChainRunError(ValueError):
@@ -198,7 +200,7 @@ class ChainRunner:
                              reengage_distance=REENGAGE,
                              travel_height=BLOCK_TRAVEL_HEIGHT if config.family == "building_blocks" else 0.0,
                              approach_stages=APPROACH_STAGES.get(config.family, ()),
-                             approach_timeout=APPROACH_TIMEOUT,
+                             approach_timeout=APPROACH_TIMEOUT if config.family in TIMEOUT_FAMILIES else np.inf,
                              carry_stages=CARRY_STAGES.get(config.family, ()))
         if config.untrained_hidden_sizes is not None:
             params.untrained_hidden_sizes = tuple(config.untrained_hidden_sizes)

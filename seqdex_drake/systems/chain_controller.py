@@ -276,6 +276,10 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
     # A stage that observes its progress: its F reads histories with the progress appended (the switcher adds it).
     time_steps = tuple(config.episode_length if config.observe_time else 0 for config in configs)
     carry = dict(params.carry_stages)
+    unknown = sorted((set(params.approach_stages) | set(carry)) - set(tasks))
+    if unknown:
+        raise ValueError(f"ChainParams.approach_stages / carry_stages name {unknown}, not stages of this chain "
+                         f"({', '.join(tasks)})")
     f_files = [_load_f(i, tasks, entry, [size + (1 if t else 0) for size, t in zip(sizes, time_steps, strict=True)])
                for i, entry in enumerate(feasibility)]
     switcher_params = dataclasses.replace(params.switcher, inference=params.inference, time_steps=time_steps,
