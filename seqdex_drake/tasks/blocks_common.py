@@ -11,6 +11,7 @@ import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw
 
 from seqdex_drake.modeling.blocks import BLOCK_SPECS, TOTAL_HEIGHT
+from seqdex_drake.observation_layout import rotation_matrix
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q
 from seqdex_drake.scene.piles import BOX_CENTER, BOX_INNER_HALF
 
@@ -72,8 +73,7 @@ def accessibility_order(q_blocks: np.ndarray, candidates: list[int]) -> list[int
     low, high = reachable_region()
     keys = []
     for i in candidates:
-        w, x, y, z = q_blocks[i, :4] / np.linalg.norm(q_blocks[i, :4])
-        up_z = 1.0 - 2.0 * (x * x + y * y)  # The block's z axis, world z component.
+        up_z = rotation_matrix(q_blocks[i, :4])[2, 2]  # The block's z axis, world z component.
         tilt = np.degrees(np.arccos(np.clip(up_z, -1.0, 1.0)))
         p = q_blocks[i, 4:]
         inside = bool(np.all(p[:2] >= low) and np.all(p[:2] <= high))
