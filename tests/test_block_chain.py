@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from seqdex_drake.evaluation.runner import APPROACH_STAGES, CARRY_STAGES, ChainRunner, RunConfig
+from seqdex_drake.evaluation.chain_settings import APPROACH_STAGES, CARRY_STAGES
+from seqdex_drake.evaluation.runner import ChainRunner, RunConfig
 from seqdex_drake.manual import LoadManual, goal_vector
 from seqdex_drake.tasks.blocks_common import reachable_region
 
@@ -33,13 +34,13 @@ def test_blocks_are_fetched_where_the_hand_fits_and_every_stage_after_search_sta
         assert sum(1 for s, active in seen if s == stage and active) > 10
 
 
-def test_the_shipped_chain_lifts_a_block_and_carries_it_over_its_goal():
+def test_the_shipped_chain_lifts_a_block_and_carries_it_over_its_goal_turned_to_its_orientation():
     """With the shipped checkpoints: a block standing alone in the box (Orient's success, the pile parked) is
     pinched and lifted by Grasp, and Insert's approach carries it, in hand, to 3 cm over its goal
-    (``CARRY_STAGES``): a physical check of the block's pose as Insert's policy takes over."""
+    (``CARRY_STAGES``) and turns it to the goal's orientation: a physical check of the block's pose as Insert's
+    policy takes over."""
     from pathlib import Path
 
-    from seqdex_drake.evaluation.runner import CARRY_STAGES
     from seqdex_drake.tasks.blocks_common import resting_pose
 
     shipped = Path(__file__).resolve().parents[1] / "checkpoints" / "building_blocks"
@@ -56,10 +57,49 @@ def test_the_shipped_chain_lifts_a_block_and_carries_it_over_its_goal():
 
     def on_tick(r) -> bool:  # Insert's policy acts once its stage executes with the approach over.
         if r.chain_output("executing_stage")[0] == 3 and r.chain_output("approach_active")[0] < 0.5:
-            handed.append(r.object_pose().translation())
+            handed.append((r.object_pose().translation(), r.errors()[1]))
+        elif r.chain_output("executing_stage")[0] == 2:
+            lifted.append(r.errors()[1])
         return not handed
 
+    lifted = []
     runner.run(20.0, on_tick=on_tick, stop_on_success=False)
     assert handed, "Insert's policy never took over"
     height = dict(CARRY_STAGES["building_blocks"])["insert"]
-    np.testing.assert_allclose(handed[0], runner.goal[:3] + [0.0, 0.0, height], atol=0.015)
+    np.testing.assert_allclose(handed[0][0], runner.goal[:3] + [0.0, 0.0, height], atol=0.015)
+    # Grasp's jaws leave the block turned and tilted in hand (12-18 deg); the carry turns the hand to bring it to its
+    # goal's orientation (CARRY_GOAL_SYMMETRY: the yaw-flipped goal counts).
+    assert lifted[-1] > np.deg2rad(8)
+    assert handed[0][1] < np.deg2rad(4)
+    assert not runner.is_success()  # In hand over its goal: not placed.
+
+
+def test_a_block_counts_as_placed_only_released_and_at_rest():
+    """``ChainRunner.is_success`` for blocks: at its goal, at rest and out of the hand's touch; moving through the
+    goal, or touching a fingertip there, it is not placed."""
+    from pydrake.common.eigen_geometry import Quaternion
+    from pydrake.math import RigidTransform, RotationMatrix
+    from pydrake.multibody.math import SpatialVelocity
+
+    from seqdex_drake.observation_layout import pose_vector
+    from seqdex_drake.station import RefreshSampledOutputs
+
+    runner = ChainRunner(RunConfig(family="building_blocks", max_switches=0, stage_steps=(3, 3, 3, 3),
+                                   untrained_hidden_sizes=(16,), seed=0))
+    step = LoadManual("small_wall").steps[0]
+    name = runner.start_block(step.block_type, goal_vector(step))
+    body = runner.objects.bodies[runner.objects.index(name)]
+    X_goal = RigidTransform(RotationMatrix(Quaternion(runner.goal[3:])), runner.goal[:3])
+    runner.objects.set_pose(runner.context, name, X_goal, frozen=False)
+    RefreshSampledOutputs(runner.plant, runner.plant_context)
+    assert runner.errors()[0] < 1e-9 and runner.is_success()
+    runner.plant.SetFreeBodySpatialVelocity(runner.plant_context, body, SpatialVelocity([0, 0, 0], [0, 0, -0.1]))
+    assert not runner.is_success()  # Falling through the goal.
+    # The block against the index fingertip, its goal declared there: reached, but in the hand's touch.
+    tip = runner.plant.EvalBodyPoseInWorld(runner.plant_context, runner.plant.GetBodyByName("index_tip"))
+    X_touch = RigidTransform(X_goal.rotation(), tip.translation() + [0.0, 0.0, -0.02])
+    runner.objects.set_pose(runner.context, name, X_touch, frozen=False)
+    runner.goal = pose_vector(X_touch)
+    RefreshSampledOutputs(runner.plant, runner.plant_context)
+    assert runner.objects.touches_robot(runner.plant_context, name)
+    assert runner.errors()[0] < 1e-9 and not runner.is_success()

@@ -9,8 +9,15 @@ import pytest
 from script_checks import assert_markov, assert_zero_corrections_apply
 
 from seqdex_drake.observation_layout import GOAL_POSITION_ERROR
-from seqdex_drake.robots.allegro import unscale_limits_to_action
-from seqdex_drake.scene.block_insert_script import ScriptedBlockInsert, run_episode
+from seqdex_drake.robots.allegro import scale_action_to_limits, unscale_limits_to_action
+from seqdex_drake.scene.block_insert_script import (
+    JOINT_Q,
+    RELEASE_DELTA,
+    THUMB_ROTATION,
+    TRIPOD_THUMB_ROTATION,
+    ScriptedBlockInsert,
+    run_episode,
+)
 from seqdex_drake.tasks.base import TaskConfig
 from seqdex_drake.tasks.registry import budget_config, default_config, make_env
 from seqdex_drake.tasks.residual import make_base
@@ -79,3 +86,23 @@ def test_the_wrist_holds_still_when_the_block_is_not_in_hand(env):
     action = script.act(away, 20)
     np.testing.assert_array_equal(action[16:], 0.0)
     np.testing.assert_allclose(action[:16], script.act(observation, 20)[:16])
+
+
+def test_the_release_goes_by_the_grasp_in_hand(env):
+    """Insert's own tripod opens by RELEASE_DELTA; another grasp (the thumb's rotation well off its lower limit, as
+    in Grasp's jaw pinch) relaxes: its targets become the measured joint positions."""
+    script = ScriptedBlockInsert()
+    observation, _ = env.reset(seed=3)
+    assert script.release_kind(observation) == "tripod"
+    held = script.act(observation, 0)[:16]
+    previous = np.array(observation, dtype=float)
+    previous[124:140] = held  # As if the held grasp had been applied: the release adds a sixth of RELEASE_DELTA.
+    np.testing.assert_allclose(scale_action_to_limits(script.act(previous, 100)[:16]),
+                               scale_action_to_limits(held) + RELEASE_DELTA / 6, atol=1e-9)
+    pinch = previous.copy()
+    pinch[JOINT_Q.start + THUMB_ROTATION] = TRIPOD_THUMB_ROTATION + 0.2
+    assert script.release_kind(pinch) == "relax"
+    np.testing.assert_allclose(script.act(pinch, 100)[:16], unscale_limits_to_action(pinch[JOINT_Q]), atol=1e-12)
+    assert ScriptedBlockInsert(release="tripod").release_kind(pinch) == "tripod"
+    with pytest.raises(ValueError, match="release must be"):
+        ScriptedBlockInsert(release="open")

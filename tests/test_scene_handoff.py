@@ -1,7 +1,8 @@
 """Hand-offs across station scenes (``envs/scene_handoff.py``): a Search state (the 72-block pile) starts Orient
 (one block in the box) with the robot and the dug-out block where they were and the other blocks parked; a block
-held at Grasp's end stays in hand when Insert (the boards scene) starts from it; a state without the carried fields
-is refused with a clear error; and chains check that every object has a counterpart in the next scene."""
+held at Grasp's end stays in hand when Insert (the boards scene) starts from it, carried over its goal; a state
+without the carried fields is refused with a clear error; and chains check that every object has a counterpart in
+the next scene."""
 
 import dataclasses
 
@@ -10,6 +11,8 @@ import pytest
 
 from seqdex_drake.env_state import SceneHandoffError, check_handoff, counterpart
 from seqdex_drake.envs.chain_env import ChainEnv
+from seqdex_drake.scene.block_insert_script import ScriptedBlockInsert
+from seqdex_drake.tasks.carry import CARRY_HEIGHT
 from seqdex_drake.tasks.insert import BASEPLATE_TOP, LAYER_HEIGHT, PLATE_XY
 from seqdex_drake.tasks.registry import budget_config, make_env
 
@@ -59,12 +62,20 @@ def test_a_block_held_at_grasps_end_stays_in_hand_in_insert(envs):
               and insert.objects.positions(insert.context)[insert.objects.index(name), 4] > 0.0]
     assert len(plates) == 1 and insert.goal[2] == pytest.approx(BASEPLATE_TOP + int(plates[0][-1]) * LAYER_HEIGHT)
     assert np.linalg.norm(insert.goal[:2] - PLATE_XY) < 0.06
-    hold = np.r_[state.previous_action[:16], 0.0, -1.0, 0.0]  # The same hand targets; the wrist toward the boards.
-    for _ in range(20):
+    # Carried, in hand, 3 cm over its goal and turned to the goal's orientation (the whole chain's carry).
+    X_WG = insert.goal
+    np.testing.assert_allclose(insert.object_pose().translation(), X_WG[:3] + [0.0, 0.0, CARRY_HEIGHT], atol=2e-4)
+    assert insert.task.goal_errors(insert)[1] < 1e-3
+    assert ScriptedBlockInsert().release_kind(insert.observation()) == "relax"  # Grasp's jaw pinch, not the tripod.
+    turned = (insert.R_WP_hold.inverse() @ insert.R_WP_home).ToAngleAxis().angle()
+    hold = np.r_[state.previous_action[:16], 0.0, 0.0, 0.0]  # The same hand targets; the wrist still.
+    start = insert.object_position()
+    for _ in range(30):
         insert.step(hold)
-    assert insert.object_position()[2] > grasp.object_position()[2] - 0.02  # Still up, carried along -y.
-    assert insert.object_position()[1] < grasp.object_position()[1] - 0.05
-    assert insert.fingertip_distance() < 0.4
+    assert np.linalg.norm(insert.object_position() - start) < 0.01  # Still in hand, where the carry left it.
+    assert insert.task.goal_errors(insert)[1] < 0.05
+    insert.reset(seed=0)  # A reset of its own holds the palm as usual again.
+    assert turned > 0.01 and insert.R_WP_hold is insert.R_WP_home
 
 
 def test_a_state_without_the_carried_fields_is_refused(envs):

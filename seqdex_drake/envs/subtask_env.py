@@ -99,7 +99,8 @@ class SubtaskEnv(gym.Env):
         self.ik = PalmIK(self._controller_plant, p_PalmC_Palm=p_PalmHc_Palm)
         self.arm = self.plant.GetModelInstanceByName("franka")
         self.hand = self.plant.GetModelInstanceByName("allegro")
-        self.R_WP_hold = self.ik.palm_pose(np.asarray(self.scenario.robot.arm_home)).rotation()
+        self.R_WP_home = self.ik.palm_pose(np.asarray(self.scenario.robot.arm_home)).rotation()
+        self.R_WP_hold = self.R_WP_home  # The palm orientation the wrist holds (a reset may turn it for its episode).
         # A wrist-only task (``hand_actions=False``) pins the 16 hand dims to 0 (low == high): the hand is not the
         # policy's to move, and learners skip dims with no range (rl.networks.ActorCritic ``fixed_actions``).
         action_low = np.full(ACTION_SIZE, -1.0, np.float32)
@@ -308,6 +309,7 @@ class SubtaskEnv(gym.Env):
         self.plant.SetDefaultState(self._plant_context, self._plant_context.get_mutable_state())
         self.set_robot(np.asarray(self.scenario.robot.arm_home, dtype=float), ALLEGRO_OPEN_Q)
         self.goal = np.array([0, 0, 0, 1.0, 0, 0, 0])
+        self.R_WP_hold = self.R_WP_home
         self.objects.forget_motion()
         if seed is not None:
             self.randomizer.restore_nominal()

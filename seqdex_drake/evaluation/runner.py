@@ -8,8 +8,8 @@ An episode is one block (Search -> Orient -> Grasp -> Insert to a goal on the ba
 (grasp -> reorient): :meth:`start_block` / :meth:`start_tool` set the target and goal and restart the chain,
 :meth:`run` steps at the control rate until the object reaches its goal or the time limit.
 
-Success (FACTS.md): a block within 0.02 m and 0.2 rad of its goal (a 180 deg yaw flip counts), a tool within
-0.5 rad of its goal orientation (the start pose flipped 180 deg about its long axis).
+Success (FACTS.md): a block within 0.02 m and 0.2 rad of its goal (a 180 deg yaw flip counts), let go of and at
+rest; a tool within 0.5 rad of its goal orientation (the start pose flipped 180 deg about its long axis).
 """
 
 import dataclasses
@@ -23,6 +23,15 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
 from seqdex_drake.chaining.chain import LoadChain
+from seqdex_drake.evaluation.chain_settings import (
+    APPROACH_STAGES,
+    APPROACH_TIMEOUT,
+    BLOCK_TRAVEL_HEIGHT,
+    CARRY_GOAL_SYMMETRY,
+    CARRY_STAGES,
+    REENGAGE,
+    TIMEOUT_FAMILIES,
+)
 from seqdex_drake.harness import ResolvePackageUrl
 from seqdex_drake.modeling.blocks import BLOCK_SPECS
 from seqdex_drake.modeling.tools import TOOL_SPECS
@@ -41,7 +50,11 @@ from seqdex_drake.tasks.tools_common import TABLE_TOP, TOOL_XY
 
 #: Task family -> station scenario.
 SCENARIOS = {"building_blocks": "building_blocks/chain", "tool_positioning": "tool_positioning/tool_grasp"}
+#: A block is placed within these position (m) and rotation (rad) errors of its goal (Insert's success) once the
+#: hand has let go of it and it is at rest (:meth:`ChainRunner.is_success`).
 BLOCK_TOLERANCE = (0.02, 0.2)
+#: A block is at rest below this speed of its origin (m/s) and this angular speed (rad/s).
+BLOCK_REST_SPEED = (0.02, 0.2)
 TOOL_TOLERANCE = 0.5
 #: Where a tool's goal is: lifted this far above its start, held in hand.
 TOOL_GOAL_LIFT = 0.15
@@ -52,29 +65,6 @@ TOOL_HELD_LIFT = TOOL_GOAL_LIFT / 2
 DIVERGED = 1e3
 
 
-#: Within a stage the approach never takes over again (a stage change restarts it), as in the envs, where nothing
-#: pulls the hand back: tool Grasp's script moves the hand more than the default 0.1 m from the tool's top while it
-#: grasps, block Search's moves it 14-17 cm aside of the target, Orient's fingertip strokes across the block.
-REENGAGE = float("inf")
-#: The Building Blocks approach crosses at this height (m) of the hand centre between the baseplate and the pile:
-#: the box walls' tops are at 0.765 m, and a straight line from the baseplate ran the hanging fingers into the near
-#: wall (the hand stopped against it, and the next block's Search never started).
-BLOCK_TRAVEL_HEIGHT = 0.9
-
-#: Stages entered with the approach first (``ChainParams.approach_stages``): block Orient and Grasp were trained from
-#: resets with the open hand 5 cm above the block, and Search leaves the hand 14-17 cm aside of it (Orient's
-#: stylus approach from there used up its 75 steps in the pile), Orient the fingertip above the block's side.
-APPROACH_STAGES = {"building_blocks": ("orient", "grasp")}
-#: Stages entered with the approach carrying the held block to this height (m) above its goal
-#: (``ChainParams.carry_stages``): Insert's script carries it 3 cm above its goal before it lowers it, and the way
-#: there from Grasp's lift (about 1.1 m high, anywhere over the box) was more than its 125 steps at the wrist's
-#: 0.3 m/s: from 60 Grasp hand-offs Insert succeeded in none (``seqdex pipeline``'s transitions).
-CARRY_STAGES = {"building_blocks": (("insert", 0.03),)}
-#: The time (s) an episode's limit allows per approach; for Building Blocks also the approach's timeout, after which
-#: it hands over where the hand is (fingers curled by an untrained Search caught on the pile and held the Orient
-#: approach, and the chain, for good). Tool approaches have no timeout (their figures were measured without).
-APPROACH_TIMEOUT = 3.0
-TIMEOUT_FAMILIES = ("building_blocks",)
 
 
 class ChainRunError(ValueError):
@@ -201,7 +191,8 @@ class ChainRunner:
                              travel_height=BLOCK_TRAVEL_HEIGHT if config.family == "building_blocks" else 0.0,
                              approach_stages=APPROACH_STAGES.get(config.family, ()),
                              approach_timeout=APPROACH_TIMEOUT if config.family in TIMEOUT_FAMILIES else np.inf,
-                             carry_stages=CARRY_STAGES.get(config.family, ()))
+                             carry_stages=CARRY_STAGES.get(config.family, ()),
+                             carry_goal_symmetry=CARRY_GOAL_SYMMETRY.get(config.family, 0.0))
         if config.untrained_hidden_sizes is not None:
             params.untrained_hidden_sizes = tuple(config.untrained_hidden_sizes)
         builder = DiagramBuilder()
@@ -364,9 +355,19 @@ class ChainRunner:
         return float(np.linalg.norm(pose[:3] - self.goal[:3])), float(rotation)
 
     def is_success(self) -> bool:
+        """Blocks: the target within ``BLOCK_TOLERANCE`` of its goal, out of the hand's touch and at rest
+        (``BLOCK_REST_SPEED``): a block pinched 2 cm over its goal, or falling through the tolerance, is not placed.
+        Tools: within ``TOOL_TOLERANCE`` of the goal's rotation and
+        lifted at least ``TOOL_HELD_LIFT``."""
         position, rotation = self.errors()
         if self.config.family == "building_blocks":
-            return position < BLOCK_TOLERANCE[0] and rotation < BLOCK_TOLERANCE[1]
+            if position >= BLOCK_TOLERANCE[0] or rotation >= BLOCK_TOLERANCE[1]:
+                return False
+            body = self.objects.bodies[self.objects.index(self.target)]
+            V_WB = self.plant.EvalBodySpatialVelocityInWorld(self.plant_context, body)
+            return bool(np.linalg.norm(V_WB.translational()) < BLOCK_REST_SPEED[0] and np.linalg.norm(
+                V_WB.rotational()) < BLOCK_REST_SPEED[1] and not self.objects.touches_robot(self.plant_context,
+                                                                                              self.target))
         held = self.object_pose().translation()[2] > self.goal[2] - TOOL_GOAL_LIFT + TOOL_HELD_LIFT
         return rotation < TOOL_TOLERANCE and held
 

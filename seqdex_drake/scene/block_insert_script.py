@@ -11,10 +11,21 @@ step / 125.
 
 * Hand. Steps 0-99 it keeps the reset's grasp: at step 0 its joint targets are read off the observation by the PD
   law, ``q + (tau + kd dq) / kp`` (joint positions, velocities and motor torques; to 2e-4 rad), from step 1 on
-  they are the previous applied action's hand part (the observation's entries 124-139). From step 100 it opens
-  over 6 steps by :data:`RELEASE_DELTA` added to those targets: each tip 2 cm off its face and 1 cm up (inverse
-  kinematics on the hand alone); then it holds. Opening to the open hand instead straightens the thumb, whose
-  tip then pushes the block along +x (see below).
+  they are the previous applied action's hand part (the observation's entries 124-139). From step 100 it lets go,
+  by the grasp in hand (:data:`TRIPOD_THUMB_ROTATION`). Its own reset's tripod opens over 6 steps by
+  :data:`RELEASE_DELTA` added to those targets: each tip 2 cm off its face and 1 cm up (inverse kinematics on the
+  hand alone); then it holds. Opening to the open hand instead straightens the thumb, whose tip then pushes the
+  block along +x (see below). Any other grasp (Grasp's jaw pinch, in a hand-off from Grasp) relaxes: the targets
+  go to the measured joint positions, and the lift slides the tips off the block. From the 60 Grasp hand-offs of
+  ``training/building_blocks_seqdex/buffers/grasp_to_insert.npz`` (carried over the goal, ``tasks/carry.py``
+  ``carry_to_goal``) the script placed 31 opening by RELEASE_DELTA, whose index and middle tips pushed into the
+  jaw-held block, and 39 relaxing; relaxing the tripod placed none of seeds 0-29 (the tripod's opening is what
+  straightens the block's 0.13 rad lean as it drops). Jaw-held blocks fail mostly by rolling 15-50 deg in the
+  pinch when one end meets a stud; on the first 30 of those hand-offs (22 / 30 as the script is) neither a slower
+  descent (``descend_rate`` 0.15: 20 / 30), a firmer pinch (0.1 rad more on the flexion targets at step 0:
+  5 / 30; 0.2 rad: 0 / 30), nor stopping the downward command within 2.2 cm of the goal while the palm does not
+  follow it (the wrist target winds up while the block rests on a stud: 22 / 30, and 23 / 30 on Insert's own
+  seeds 0-29 as without) helped.
 * Wrist (steps 0-99): ``clip((gain * (target - block) - damping * palm displacement per step) / 0.005)`` on the
   observed block origin (the centre of its bottom; the goal-minus-object entries), so the block, not the palm,
   goes to the goal whatever its offset in the hand; the clip ramps from 1/8 to 1 over the first 8 steps (no jerk
@@ -103,6 +114,16 @@ hand alone, ``scene/grasping.MakeHandPlant``, joints 1-3, 5-7 and 12, 14, 15; th
 in the grasp). Opened with the thumb straightened instead, the thumb's tip moves toward +x: into the block."""
 
 
+THUMB_ROTATION = 13
+"""The thumb's joint 13 (its rotation toward the fingers) among the 16 hand joints."""
+TRIPOD_THUMB_ROTATION = 0.1
+"""The release tells the grasp in hand by the thumb's joint 13 [rad]: below this, Insert's own tripod (the reset's
+squeeze holds it at about -0.05, near its lower limit -0.105), which opens by :data:`RELEASE_DELTA`; above it any
+other grasp, e.g. Grasp's jaw pinch (0.3-0.4) in a hand-off from Grasp, which relaxes: its joint targets go to the
+measured joint positions (no grip force, no finger motion) and the wrist's lift slides the tips up off the block.
+Opened by RELEASE_DELTA, the jaw pinch's index and middle tips push into the block's far face."""
+
+
 class ScriptedBlockInsert:
     """The scripted insertion (see the module docstring): :meth:`act` of the observation and the step only.
 
@@ -119,16 +140,21 @@ class ScriptedBlockInsert:
             hand's joint targets off the observation at the first step.
         held_reach: the block counts as in hand within this distance of the tips' centroid [m] (:meth:`holds`).
         wrist_step: the env's ``wrist_step`` [m per step at action 1].
+        release: how the hand lets go: "tripod" (:data:`RELEASE_DELTA`), "relax" (the targets to the measured
+            joints), or "auto": by the grasp in hand (:data:`TRIPOD_THUMB_ROTATION`).
     """
 
     def __init__(self, hover=0.03, seat=0.015, release_at=100, lift_at=112, ramp=8, gain=0.5, damping=0.5,
                  descend_xy=0.0008, funnel=15.0, descend_rate=0.4, open_steps=6, hand_kp=3.0, hand_kd=0.1,
-                 held_reach=0.08, wrist_step=WRIST_STEP):
+                 held_reach=0.08, wrist_step=WRIST_STEP, release="auto"):
         self.hover, self.seat, self.release_at, self.lift_at, self.ramp = hover, seat, release_at, lift_at, ramp
         self.gain, self.damping, self.descend_xy, self.funnel = gain, damping, descend_xy, funnel
         self.descend_rate, self.open_steps = descend_rate, open_steps
         self.hand_kp, self.hand_kd, self.wrist_step = hand_kp, hand_kd, wrist_step
         self.held_reach = held_reach
+        if release not in ("auto", "tripod", "relax"):
+            raise ValueError(f"release must be 'auto', 'tripod' or 'relax', got {release!r}")
+        self.release = release
 
     def reset(self, env) -> None:
         pass
@@ -151,6 +177,12 @@ class ScriptedBlockInsert:
         block = o[GOAL_POSITION] - o[GOAL_POSITION_ERROR]
         return float(np.linalg.norm(tips.mean(axis=0) - block)) <= self.held_reach
 
+    def release_kind(self, observation) -> str:
+        """How the hand lets go (``release="auto"``: by the grasp in hand, see :data:`TRIPOD_THUMB_ROTATION`)."""
+        if self.release != "auto":
+            return self.release
+        return "tripod" if observation[JOINT_Q][THUMB_ROTATION] < TRIPOD_THUMB_ROTATION else "relax"
+
     def block_target(self, observation) -> np.ndarray:
         """Where the block's origin should go now (world) [m]."""
         o = np.asarray(observation, float)
@@ -163,10 +195,13 @@ class ScriptedBlockInsert:
     def act(self, observation, step: int) -> np.ndarray:
         """The action for ``observation`` (the env's, 173 or 174 entries) at ``step``."""
         o = np.asarray(observation, dtype=float)
-        if step >= self.release_at:  # The release: the last targets plus a share of RELEASE_DELTA, then held.
-            last = scale_action_to_limits(o[PREVIOUS_HAND])
-            opening = RELEASE_DELTA / self.open_steps if step < self.release_at + self.open_steps else 0.0
-            hand_action = unscale_limits_to_action(np.clip(last + opening, ALLEGRO_Q_MIN, ALLEGRO_Q_MAX))
+        if step >= self.release_at:  # The release, by the grasp in hand (release_kind).
+            if self.release_kind(o) == "relax":
+                hand_action = unscale_limits_to_action(np.clip(o[JOINT_Q], ALLEGRO_Q_MIN, ALLEGRO_Q_MAX))
+            else:
+                last = scale_action_to_limits(o[PREVIOUS_HAND])
+                opening = RELEASE_DELTA / self.open_steps if step < self.release_at + self.open_steps else 0.0
+                hand_action = unscale_limits_to_action(np.clip(last + opening, ALLEGRO_Q_MIN, ALLEGRO_Q_MAX))
         else:
             hand_action = self.held_hand_action(o, step)
         if step >= self.lift_at:

@@ -100,6 +100,12 @@ class ChainParams:
     (:class:`~seqdex_drake.systems.chain_parts.ApproachTarget`, ``StageRouter(hold_hand=)``). Block Insert: from
     Grasp's lift (about 1.1 m, anywhere over the box) to the baseplate is more than its 125 steps at the wrist's
     0.3 m/s."""
+    carry_goal_symmetry: float = 0.0
+    """If > 0, the carry also turns the hand until the held object takes its goal's orientation, the goal counting
+    the same turned about its z by multiples of this angle [rad], and the stage's wrist IK keeps that turn
+    (``ApproachTarget``'s ``hold_rotation``). Building Blocks: pi (a block turned by pi seats the same), as Grasp's
+    jaws leave the block 10-15 deg off its yaw and tilted along its length, and the policies' wrist actions are
+    translations. 0: the palm keeps its orientation."""
     stage_configs: Sequence | None = None
     """Each stage's :class:`~seqdex_drake.tasks.base.TaskConfig` as its policy was trained (EMA, wrist step,
     episode length, scripted phases; ``seqdex_drake.chaining.shipped`` records them); None: the tasks' defaults."""
@@ -290,21 +296,22 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
     osc_params = params.osc or OscParams(p_PalmPc_Palm=tuple(p_PalmHc_Palm), hover_height=configs[0].hover_height,
                                          solve_while_handed_over=False)
     router = builder.AddNamedSystem("router", StageRouter(len(tasks), period, [task in carry for task in tasks]))
+    home = np.asarray(scenario.robot.arm_home, dtype=float)
+    ik = PalmIK(MakeControllerPlant(scenario), p_PalmC_Palm=p_PalmHc_Palm)
+    R_WP_hold = ik.palm_pose(home).rotation()  # The palm orientation the OSC and the wrist IK hold (the home's).
     hand = (int(plant.GetBodyByName("palm").index()), osc_params.p_PalmPc_Palm, osc_params.hover_height)
     approach = builder.AddNamedSystem("approach_target", ApproachTarget(
-        plant, [goal for goal, _ in layouts], [carry.get(task, np.nan) for task in tasks], hand))
+        plant, [goal for goal, _ in layouts], [carry.get(task, np.nan) for task in tasks], hand,
+        params.carry_goal_symmetry, R_WP_hold))
     if params.reengage_distance is not None:
         osc_params = dataclasses.replace(osc_params, reengage_distance=params.reengage_distance)
     if params.travel_height > 0.0:
         osc_params = dataclasses.replace(osc_params, travel_height=params.travel_height)
     if params.approach_timeout < float("inf"):
         osc_params = dataclasses.replace(osc_params, approach_timeout=params.approach_timeout)
-    controller_plant = MakeControllerPlant(scenario)
-    home = np.asarray(scenario.robot.arm_home, dtype=float)
     osc = builder.AddNamedSystem("osc", OperationalSpaceController(
-        controller_plant, period, scenario.robot.arm_kp, scenario.robot.arm_kd, osc_params, home_q=home))
-    ik = PalmIK(MakeControllerPlant(scenario), p_PalmC_Palm=p_PalmHc_Palm)
-    wrist = builder.AddNamedSystem("wrist_ik", WristTargetIntegrator(ik, ik.palm_pose(home).rotation(), period))
+        MakeControllerPlant(scenario), period, scenario.robot.arm_kp, scenario.robot.arm_kd, osc_params, home_q=home))
+    wrist = builder.AddNamedSystem("wrist_ik", WristTargetIntegrator(ik, R_WP_hold, period))
 
     # Station-side inputs, each exported once and fanned out.
     consumers = {name: [a.GetInputPort(name) for a in assemblers.values()] for name in _ASSEMBLER_INPUTS}
@@ -339,6 +346,9 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
     builder.Connect(osc.GetOutputPort("approach_active"), router.GetInputPort("approach_active"))
     builder.Connect(switcher.GetOutputPort("active_stage"), approach.GetInputPort("stage"))
     builder.Connect(approach.GetOutputPort("target_position"), osc.GetInputPort("target_position"))
+    if params.carry_goal_symmetry > 0.0:
+        builder.Connect(approach.GetOutputPort("hold_rotation"), osc.GetInputPort("hold_rotation"))
+        builder.Connect(approach.GetOutputPort("hold_rotation"), wrist.GetInputPort("hold_rotation"))
     builder.Connect(osc.GetOutputPort("franka.desired_state"), wrist.GetInputPort("osc.desired_state"))
     builder.Connect(router.GetOutputPort("wrist_translation"), wrist.GetInputPort("wrist_translation"))
     builder.Connect(router.GetOutputPort("policy_in_charge"), wrist.GetInputPort("policy_in_charge"))

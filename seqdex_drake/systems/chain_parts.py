@@ -16,6 +16,7 @@ tick k therefore acts from tick k + 1 (one control period of switching latency).
 from __future__ import annotations
 
 import numpy as np
+from pydrake.common.eigen_geometry import Quaternion
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import Rgba, Sphere
 from pydrake.math import RigidTransform, RotationMatrix
@@ -26,6 +27,7 @@ from pydrake.systems.framework import BasicVector, Context, DiscreteValues, Even
 from seqdex_drake.robots.arm_ik import PalmIK
 from seqdex_drake.systems.observations import ObservationTarget
 from seqdex_drake.systems.policy import ACTION_SIZE, HAND_SIZE
+from seqdex_drake.tasks.carry import CARRY_REACH, MAX_CARRY_TURN, nearest_equivalent
 
 NUM_ARM = 7
 _STAGE_COLORS = [Rgba(0.9, 0.3, 0.2, 0.8), Rgba(0.95, 0.75, 0.1, 0.8), Rgba(0.2, 0.7, 0.3, 0.8),
@@ -111,9 +113,6 @@ class StageRouter(LeafSystem):
         discrete_state.set_value(self._state_index, np.array([stage, float(in_charge)]))
 
 
-#: A carried object's origin is at most this far (m) from the approach's controlled point (the hand centre); farther,
-#: it is not in hand and the approach aims at the plain goal.
-CARRY_REACH = 0.2
 
 
 class ApproachTarget(LeafSystem):
@@ -126,17 +125,32 @@ class ApproachTarget(LeafSystem):
     the object's origin, so the approach's hover point (target + ``hover_height`` z) puts the object there. An
     object farther than ``CARRY_REACH`` from the controlled point is not in hand: the target is then the goal.
 
-    Input ports: ``body_poses`` (the station's), ``stage`` (1). Output port: ``target_position`` (3).
-    The chain target is an abstract parameter (:meth:`set_target`), shared with the observation assemblers.
+    With a ``goal_symmetry`` the carry also turns the hand until the held object takes its goal's orientation (the
+    goal counting the same turned about its own z by multiples of that angle: pi for a block). Output
+    ``hold_rotation`` (a 3x3 rotation, row-major) is then R_off = R_WG' R_WO^T R_WPalm R_WP_hold^T, R_WG' the goal's
+    equivalent nearest the object's: the turn of the held orientation (``R_WP_hold``, the one the approach and the
+    wrist IK otherwise hold) that brings the object to R_WG' if it moves with the palm. It stays constant while a
+    rigidly held object turns with the hand, and is the identity in other stages, whenever the object is not in
+    hand, and for a turn over ``MAX_CARRY_TURN``. The policies' wrist actions are translations, so without it a block
+    that Grasp's jaws turned 10-15 deg in the pinch, or tilted along its length, comes down with its tubes on the
+    plate's stud tops.
+
+    Input ports: ``body_poses`` (the station's), ``stage`` (1). Output ports: ``target_position`` (3),
+    ``hold_rotation`` (9). The chain target is an abstract parameter (:meth:`set_target`), shared with the
+    observation assemblers.
 
     Args:
         plant: the station's plant (body centres of mass; not kept).
         stage_has_goal: per stage, whether its target is the goal pose (Insert, tool Reorient).
         carry_heights: per stage, the carry height (m) or NaN (no carry); default: no carry.
         hand: ``(palm body index, p_PalmC_Palm, hover_height)`` of the approach, needed with carry stages.
+        goal_symmetry: turns [rad] about the goal's z that leave it the same, for the carry's orientation; 0: the
+            carry does not turn the hand.
+        R_WP_hold: the palm orientation held otherwise, needed with a ``goal_symmetry``.
     """
 
-    def __init__(self, plant: MultibodyPlant, stage_has_goal: list[bool], carry_heights=None, hand=None):
+    def __init__(self, plant: MultibodyPlant, stage_has_goal: list[bool], carry_heights=None, hand=None,
+                 goal_symmetry: float = 0.0, R_WP_hold: RotationMatrix | None = None):
         super().__init__()
         self._p_BoBcm = [plant.get_body(BodyIndex(i)).default_com() for i in range(plant.num_bodies())]
         self._has_goal = [bool(g) for g in stage_has_goal]
@@ -149,11 +163,19 @@ class ApproachTarget(LeafSystem):
         if np.any(carried) and hand is None:
             raise ValueError("carry stages need hand = (palm body index, p_PalmC_Palm, hover_height)")
         self._hand = None if hand is None else (int(hand[0]), np.asarray(hand[1], dtype=float), float(hand[2]))
+        if not (np.isfinite(goal_symmetry) and goal_symmetry >= 0.0):
+            raise ValueError(f"goal_symmetry must be a finite angle >= 0 (rad), got {goal_symmetry}")
+        if goal_symmetry > 0.0 and R_WP_hold is None:
+            raise ValueError("a goal_symmetry needs R_WP_hold, the palm orientation the approach otherwise holds")
+        turns = max(1, int(round(2 * np.pi / goal_symmetry))) if goal_symmetry > 0.0 else 0
+        self._goal_turns = [RotationMatrix.MakeZRotation(k * 2 * np.pi / turns) for k in range(turns)]
+        self._R_PW_hold = None if R_WP_hold is None else R_WP_hold.inverse()
         default_poses = [RigidTransform()] * plant.num_bodies()
         self._poses_port = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make(default_poses))
         self._stage_port = self.DeclareVectorInputPort("stage", 1)
         self._target_index = self.DeclareAbstractParameter(AbstractValue.Make(ObservationTarget()))
         self.DeclareVectorOutputPort("target_position", 3, self._calc)
+        self.DeclareVectorOutputPort("hold_rotation", 9, self._calc_rotation)
 
     def set_target(self, context: Context, target: ObservationTarget) -> None:
         if not 0 <= target.object_body < len(self._p_BoBcm):
@@ -171,18 +193,58 @@ class ApproachTarget(LeafSystem):
                                "before simulating")
         stage = int(round(self._stage_port.Eval(context)[0]))
         goal = np.asarray(target.goal, dtype=float)[:3]
-        if self._has_goal[stage] and np.isfinite(self._carry[stage]):
-            poses = self._poses_port.Eval(context)
+        held = self._held(context, stage)
+        if held is not None:  # Held: carry it. Not held: the goal, as without carry.
+            X_WPalm, X_WO = held
             palm, p_PalmC, hover = self._hand
-            p_WC, p_WO = poses[palm] @ p_PalmC, poses[target.object_body].translation()
-            if np.linalg.norm(p_WC - p_WO) <= CARRY_REACH:  # Held: carry it. Not held: the goal, as without carry.
-                output.SetFromVector(goal + [0.0, 0.0, self._carry[stage] - hover] + (p_WC - p_WO))
-                return
+            p_OC = X_WPalm @ p_PalmC - X_WO.translation()
+            output.SetFromVector(goal + [0.0, 0.0, self._carry[stage] - hover] + p_OC)
+            return
         if self._has_goal[stage]:
             output.SetFromVector(goal)
             return
         X_WB = self._poses_port.Eval(context)[target.object_body]
         output.SetFromVector(X_WB @ self._p_BoBcm[target.object_body] + target.approach_offset)
+
+    def _held(self, context: Context, stage: int) -> tuple[RigidTransform, RigidTransform] | None:
+        """(X_WPalm, X_WO) while carry stage ``stage`` has the target object in hand (its origin within
+        ``CARRY_REACH`` of the controlled point), else None."""
+        if not (self._has_goal[stage] and np.isfinite(self._carry[stage])):
+            return None
+        poses = self._poses_port.Eval(context)
+        palm, p_PalmC, _ = self._hand
+        X_WPalm, X_WO = poses[palm], poses[self.target(context).object_body]
+        return (X_WPalm, X_WO) if np.linalg.norm(X_WPalm @ p_PalmC - X_WO.translation()) <= CARRY_REACH else None
+
+    def _calc_rotation(self, context: Context, output: BasicVector) -> None:
+        output.SetFromVector(self.hold_rotation(context).matrix().ravel())
+
+    def hold_rotation(self, context: Context) -> RotationMatrix:
+        """R_off, the turn of the held palm orientation (see the class docstring)."""
+        target = self.target(context)
+        held = None
+        if self._goal_turns and target.object_body >= 0:
+            held = self._held(context, int(round(self._stage_port.Eval(context)[0])))
+        if held is None:
+            return RotationMatrix()
+        X_WPalm, X_WO = held
+        goal = np.asarray(target.goal, dtype=float)[3:]
+        R_WG = RotationMatrix(Quaternion(goal / np.linalg.norm(goal)))
+        R_err = nearest_equivalent(R_WG, X_WO.rotation(), self._goal_turns) @ X_WO.rotation().inverse()
+        R_off = R_err @ X_WPalm.rotation() @ self._R_PW_hold
+        return R_off if R_off.ToAngleAxis().angle() <= MAX_CARRY_TURN else RotationMatrix()
+
+
+def held_orientation(port, context: Context, R_WP_hold: RotationMatrix, cache: list) -> RotationMatrix:
+    """``R_off R_WP_hold`` for the optional ``hold_rotation`` input ``port`` (R_off row-major; unconnected: the
+    identity). ``cache`` is ``[R_off values, result]``, reused while the input is unchanged (the wrist IK caches its
+    target's matrix by the rotation's identity)."""
+    if not port.HasValue(context):
+        return R_WP_hold
+    values = np.asarray(port.Eval(context), dtype=float)
+    if cache[0] is None or not np.array_equal(values, cache[0]):
+        cache[:] = [values.copy(), RotationMatrix(values.reshape(3, 3)) @ R_WP_hold]
+    return cache[1]
 
 
 class WristTargetIntegrator(LeafSystem):
@@ -196,7 +258,9 @@ class WristTargetIntegrator(LeafSystem):
     the OSC's last command when a policy takes over.
 
     Input ports: ``franka.state`` (14, read at initialization), ``osc.desired_state`` (14),
-    ``wrist_translation`` (3), ``policy_in_charge`` (1). Output port: ``franka.desired_state`` (14).
+    ``wrist_translation`` (3), ``policy_in_charge`` (1), ``hold_rotation`` (9, optional: the held orientation is
+    R_off ``R_WP_hold``, R_off the input row-major, :class:`ApproachTarget`). Output port:
+    ``franka.desired_state`` (14).
 
     Args:
         ik: the palm IK on the controller plant (controlled point: the hand centre).
@@ -211,9 +275,11 @@ class WristTargetIntegrator(LeafSystem):
         self._osc_port = self.DeclareVectorInputPort("osc.desired_state", 2 * NUM_ARM)
         self._wrist_port = self.DeclareVectorInputPort("wrist_translation", 3)
         self._in_charge_port = self.DeclareVectorInputPort("policy_in_charge", 1)
+        self._turn_port = self.DeclareVectorInputPort("hold_rotation", 9)
+        self._held = [None, R_WP_hold]
         self._q_index = self.DeclareDiscreteState(NUM_ARM)
         tickets = {self.discrete_state_ticket(self._q_index), self._osc_port.ticket(), self._wrist_port.ticket(),
-                   self._in_charge_port.ticket()}
+                   self._in_charge_port.ticket(), self._turn_port.ticket()}
         self._output_port = self.DeclareVectorOutputPort("franka.desired_state", 2 * NUM_ARM, self._calc,
                                                          prerequisites_of_calc=tickets)
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
@@ -224,7 +290,7 @@ class WristTargetIntegrator(LeafSystem):
             return np.asarray(self._osc_port.Eval(context), dtype=float)
         q = context.get_discrete_state(self._q_index).get_value()
         p_WC = self._ik.palm_position(q) + self._wrist_port.Eval(context)
-        q_next = self._ik.step(q, p_WC, self._R_WP)
+        q_next = self._ik.step(q, p_WC, held_orientation(self._turn_port, context, self._R_WP, self._held))
         # The target moves at (q_next - q) / period: fed forward as the desired velocity, as the sub-task env does
         # (without it the arm's heavily damped PD trails a moving wrist command by centimetres).
         return np.concatenate((q_next, (q_next - q) / self._period))

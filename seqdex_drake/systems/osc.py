@@ -14,10 +14,11 @@ Quadratic program (decision variables: joint accelerations ``qdd`` (7) and joint
 ``J`` is the spatial Jacobian (angular; translational) of the controlled point C (the palm centre), ``a_des``
 a velocity-limited PD acceleration toward the hover point H = target + (0, 0, hover_height) (or, with a
 ``travel_height``, first up to that height and across at it: :meth:`OperationalSpaceController.waypoint`) and toward the
-held orientation R_WD, ``qdd_post`` a joint-space PD toward the posture (the arm home). The bounds on
-``qdd`` combine, per joint and per tick, the velocity limit on ``v + qdd dt``, a braking-distance bound that
-keeps ``q`` inside its limits minus a margin, and the limit on the torque the station's joint PD actuators
-(gains kp, kd; gravity fed forward) exert at the start of the tick for the command sent below.
+held orientation R_WD (R_off R_WD with the optional ``hold_rotation`` input), ``qdd_post`` a joint-space PD toward
+the posture (the arm home). The bounds on ``qdd`` combine, per joint and per tick, the velocity limit on
+``v + qdd dt``, a braking-distance bound that keeps ``q`` inside its limits minus a margin, and the limit on the
+torque the station's joint PD actuators (gains kp, kd; gravity fed forward) exert at the start of the tick for
+the command sent below.
 
 The solution becomes the PD targets of ``franka.desired_state``: ``v_cmd = v + qdd dt`` and
 ``q_cmd = q + v_cmd dt / 2`` (the mid-tick position, so the PD's stiffness term averages to zero over the
@@ -52,6 +53,7 @@ from seqdex_drake.robots.allegro import PALM_BODY
 from seqdex_drake.robots.franka import FRANKA_HOME_Q, FRANKA_JOINT_NAMES
 from seqdex_drake.scenario import Scenario
 from seqdex_drake.station import MakeControllerPlant
+from seqdex_drake.systems.chain_parts import held_orientation
 from seqdex_drake.systems.osc_params import OscParams, OscStatistics
 
 __all__ = ["AddOperationalSpaceController", "OperationalSpaceController", "OscParams", "OscStatistics"]
@@ -63,7 +65,8 @@ NUM_ARM = 7
 class OperationalSpaceController(LeafSystem):
     """Drives the palm centre to a hover point above a target by solving a QP every control tick.
 
-    Input ports: ``franka.state`` (14: q, v), ``target_position`` (3, world, m).
+    Input ports: ``franka.state`` (14: q, v), ``target_position`` (3, world, m), optional ``stage_epoch`` (1) and
+    ``hold_rotation`` (9: R_off row-major, the held orientation is then R_off R_WD; unconnected: R_WD).
     Output ports: ``franka.desired_state`` (14: q_cmd, v_cmd for the joint PD actuators),
     ``approach_active`` (1: 1.0 while the controller is in charge), ``qp_failures`` (1: count since init).
 
@@ -119,6 +122,8 @@ class OperationalSpaceController(LeafSystem):
         self._target_port = self.DeclareVectorInputPort("target_position", 3)
         self._command_index = self.DeclareDiscreteState(np.r_[home, np.zeros(NUM_ARM)])
         self._epoch_port = self.DeclareVectorInputPort("stage_epoch", 1)  # Optional.
+        self._turn_port = self.DeclareVectorInputPort("hold_rotation", 9)  # Optional.
+        self._turn_cache = [None, self._R_WD]
         self._status_index = self.DeclareDiscreteState(np.array([1.0, 0.0]))  # approach_active, qp_failures
         self._epoch_index = self.DeclareDiscreteState(np.zeros(1))  # The stage_epoch seen last tick.
         self._since_index = self.DeclareDiscreteState(np.zeros(1))  # When the current approach started.
@@ -194,10 +199,11 @@ class OperationalSpaceController(LeafSystem):
         return X_WPalm @ self._p_PC
 
     def _desired_acceleration(self, p_WC: np.ndarray, R_WPalm: RotationMatrix, V_WC: np.ndarray,
-                              p_WH: np.ndarray) -> np.ndarray:
-        """Velocity-limited PD acceleration [alpha; a] (world) of the controlled point toward H and R_WD."""
+                              p_WH: np.ndarray, R_WD: RotationMatrix | None = None) -> np.ndarray:
+        """Velocity-limited PD acceleration [alpha; a] (world) of the controlled point toward H and R_WD (default:
+        the held orientation)."""
         p = self._params
-        R_err = (self._R_WD @ R_WPalm.inverse()).ToAngleAxis()
+        R_err = ((self._R_WD if R_WD is None else R_WD) @ R_WPalm.inverse()).ToAngleAxis()
         w_des = _clip_norm(p.orientation_kp / p.orientation_kd * R_err.angle() * R_err.axis(),
                            p.max_angular_speed)
         v_des = _clip_norm(p.position_kp / p.position_kd * (p_WH - p_WC), p.max_speed)
@@ -274,7 +280,8 @@ class OperationalSpaceController(LeafSystem):
                                               world, world)
         bias = plant.CalcBiasSpatialAcceleration(pc, JacobianWrtVariable.kV, self._palm_frame, self._p_PC,
                                                  world, world)
-        a_des = self._desired_acceleration(p_WC, X_WPalm.rotation(), J @ v, self.waypoint(p_WC, p_WH))
+        R_WD = held_orientation(self._turn_port, context, self._R_WD, self._turn_cache)
+        a_des = self._desired_acceleration(p_WC, X_WPalm.rotation(), J @ v, self.waypoint(p_WC, p_WH), R_WD)
         a_des -= np.concatenate((bias.rotational(), bias.translational()))
 
         # Task + posture cost on qdd: |W (J qdd - a_des)|^2 + w_post |qdd - qdd_post|^2 + w_reg |qdd|^2.

@@ -1,11 +1,12 @@
 """Insert (Building Blocks): put the block held in hand onto its goal on a 4x4 plate, studs seated.
 
-Reset: a hand-off state from Grasp (``options={"initial_state": ...}``, forward initialization), or
-standalone a scripted tripod pickup from the table (``tasks/handoff.py``). The goal: a plate of 1-3 layers
-stands on the baseplate (frozen: a static support), the block's goal is stud-aligned on its top at yaw 0 or
-90 deg. Observation: base + goal pose, position and quaternion differences (173). Reward: the paper's Insert
-formula. Success (release): within 0.02 m and 0.2 rad of the goal, a 180 deg yaw flip counting as the goal.
-The goal yaws drawn are ``TaskConfig.goal_yaws_deg`` (default 0 and 90 deg).
+Reset: a hand-off state from Grasp (``options={"initial_state": ...}``, forward initialization), the block in
+hand then carried 3 cm over its goal and turned to its orientation as the whole chain's approach carries it
+(``tasks/carry.py``), or standalone a scripted tripod pickup from the table (``tasks/handoff.py``). The goal: a
+plate of 1-3 layers stands on the baseplate (frozen: a static support), the block's goal is stud-aligned on its
+top at yaw 0 or 90 deg. Observation: base + goal pose, position and quaternion differences (173). Reward: the
+paper's Insert formula. Success (release): within 0.02 m and 0.2 rad of the goal, a 180 deg yaw flip counting as
+the goal. The goal yaws drawn are ``TaskConfig.goal_yaws_deg`` (default 0 and 90 deg).
 
 :func:`budget_config` is the variant that fits a small training budget (``../shared/TRAINING.md``), as block
 Grasp's: a residual policy (``tasks/residual.py``) on the scripted insertion of ``scene/block_insert_script.py``
@@ -24,6 +25,7 @@ from seqdex_drake.modeling.blocks import BLOCK_SPECS, STUD_PITCH
 from seqdex_drake.observation_layout import OBJECT_QUATERNION, floats, pose_vector, quat_product
 from seqdex_drake.tasks.base import Task, TaskConfig
 from seqdex_drake.tasks.blocks_common import block_name
+from seqdex_drake.tasks.carry import carry_to_goal
 from seqdex_drake.tasks.handoff import scripted_block_pickup
 from seqdex_drake.tasks.rewards import RewardWeights, goal_errors, goal_reward, quaternion_angle
 
@@ -88,9 +90,11 @@ class InsertTask(Task):
     def on_restore(self, env, from_task: str = "") -> None:
         """A hand-off from another sub-task (forward initialization: Grasp's held block, carried over from its
         scene, ``envs/scene_handoff.py``) has no plate or goal: they are drawn as a reset draws them, from the
-        env's generator. An Insert state of its own keeps its goal."""
+        env's generator; then the block, in hand, is carried over its goal as the whole chain's approach carries
+        it (``tasks/carry.py``). An Insert state of its own keeps its goal."""
         if from_task and from_task != self.config.name:
             self.place_goal(env, env.np_random, env.target_object)
+            carry_to_goal(env)
 
     def place_goal(self, env, rng, name: str) -> None:
         """Stands a plate of 1-3 layers on the baseplate (frozen) and declares block ``name``'s goal on it: a

@@ -1,0 +1,34 @@
+"""How the chain runner (``evaluation/runner.py``) sets up each task family's chain: where the approach runs,
+carries and times out (``systems/chain_controller.ChainParams``)."""
+
+import numpy as np
+
+from seqdex_drake.tasks.carry import CARRY_HEIGHT
+
+#: Within a stage the approach never takes over again (a stage change restarts it), as in the envs, where nothing
+#: pulls the hand back: tool Grasp's script moves the hand more than the default 0.1 m from the tool's top while it
+#: grasps, block Search's moves it 14-17 cm aside of the target, Orient's fingertip strokes across the block.
+REENGAGE = float("inf")
+#: The Building Blocks approach crosses at this height (m) of the hand centre between the baseplate and the pile:
+#: the box walls' tops are at 0.765 m, and a straight line from the baseplate ran the hanging fingers into the near
+#: wall (the hand stopped against it, and the next block's Search never started).
+BLOCK_TRAVEL_HEIGHT = 0.9
+
+#: Stages entered with the approach first (``ChainParams.approach_stages``): block Orient and Grasp were trained from
+#: resets with the open hand 5 cm above the block, and Search leaves the hand 14-17 cm aside of it (Orient's
+#: stylus approach from there used up its 75 steps in the pile), Orient the fingertip above the block's side.
+APPROACH_STAGES = {"building_blocks": ("orient", "grasp")}
+#: Stages entered with the approach carrying the held block to this height (m) above its goal
+#: (``ChainParams.carry_stages``): Insert's script carries it 3 cm above its goal before it lowers it, and the way
+#: there from Grasp's lift (about 1.1 m high, anywhere over the box) was more than its 125 steps at the wrist's
+#: 0.3 m/s: from 60 Grasp hand-offs Insert succeeded in none (``seqdex pipeline``'s transitions).
+CARRY_STAGES = {"building_blocks": (("insert", CARRY_HEIGHT),)}
+#: The carry also turns the held object to its goal's orientation, the goal the same turned by this angle about its
+#: z (``ChainParams.carry_goal_symmetry``): a block seats the same turned by pi, and Grasp's jaws leave it 10-15 deg
+#: off its yaw and tilted along its length.
+CARRY_GOAL_SYMMETRY = {"building_blocks": np.pi}
+#: The time (s) an episode's limit allows per approach; for Building Blocks also the approach's timeout, after which
+#: it hands over where the hand is (fingers curled by an untrained Search caught on the pile and held the Orient
+#: approach, and the chain, for good). Tool approaches have no timeout (their figures were measured without).
+APPROACH_TIMEOUT = 3.0
+TIMEOUT_FAMILIES = ("building_blocks",)
