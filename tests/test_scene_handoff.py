@@ -74,8 +74,13 @@ def test_a_block_held_at_grasps_end_stays_in_hand_in_insert(envs):
         insert.step(hold)
     assert np.linalg.norm(insert.object_position() - start) < 0.01  # Still in hand, where the carry left it.
     assert insert.task.goal_errors(insert)[1] < 0.05
+    carried, R_held = insert.get_state(), insert.R_WP_hold
     insert.reset(seed=0)  # A reset of its own holds the palm as usual again.
     assert turned > 0.01 and insert.R_WP_hold is insert.R_WP_home
+    insert.reset(options={"initial_state": insert.get_state()})  # A standalone state of its own: home, exactly.
+    assert insert.R_WP_hold is insert.R_WP_home
+    insert.reset(options={"initial_state": carried})  # A carried one: the turned palm, as it was held.
+    assert (insert.R_WP_hold.inverse() @ R_held).ToAngleAxis().angle() < 0.01
 
 
 def test_a_state_without_the_carried_fields_is_refused(envs):

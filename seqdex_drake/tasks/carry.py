@@ -22,6 +22,9 @@ MAX_CARRY_TURN = 1.75
 CARRY_REACH = 0.2
 #: A hand-off from Grasp starts Insert with the block this far (m) above its goal (:func:`carry_to_goal`).
 CARRY_HEIGHT = 0.03
+#: A restored state whose arm target turns the palm more than this (rad) from home continues a carried episode: its
+#: wrist holds that orientation (:func:`restore_held_orientation`).
+MIN_HELD_TURN = 0.02
 #: A block's goal is the same turned by pi about its z.
 BLOCK_GOAL_TURNS = (RotationMatrix(), RotationMatrix.MakeZRotation(np.pi))
 
@@ -66,3 +69,14 @@ def carry_to_goal(env, height: float = CARRY_HEIGHT) -> bool:
     env.R_WP_hold = X_WPalm_new.rotation()
     env.refresh_sampled_outputs()
     return True
+
+
+def restore_held_orientation(env) -> None:
+    """Sets the palm orientation ``env``'s wrist holds after restoring a state of its own: the one its arm target
+    gives if that is turned more than ``MIN_HELD_TURN`` from home (an episode that began with
+    :func:`carry_to_goal`), else home (the wrist IK keeps the home orientation to about 1e-3 rad, so a standalone
+    state continues exactly as it would have). A carried state continues with the orientation read back from its arm
+    target, within the wrist IK's tracking error of the one it held."""
+    R_WP = env.ik.palm_pose(np.asarray(env._arm_target, dtype=float)).rotation()
+    turned = (R_WP @ env.R_WP_home.inverse()).ToAngleAxis().angle() > MIN_HELD_TURN
+    env.R_WP_hold = R_WP if turned else env.R_WP_home

@@ -25,7 +25,7 @@ from seqdex_drake.modeling.blocks import BLOCK_SPECS, STUD_PITCH
 from seqdex_drake.observation_layout import OBJECT_QUATERNION, floats, pose_vector, quat_product
 from seqdex_drake.tasks.base import Task, TaskConfig
 from seqdex_drake.tasks.blocks_common import block_name
-from seqdex_drake.tasks.carry import carry_to_goal
+from seqdex_drake.tasks.carry import carry_to_goal, restore_held_orientation
 from seqdex_drake.tasks.handoff import scripted_block_pickup
 from seqdex_drake.tasks.rewards import RewardWeights, goal_errors, goal_reward, quaternion_angle
 
@@ -91,10 +91,13 @@ class InsertTask(Task):
         """A hand-off from another sub-task (forward initialization: Grasp's held block, carried over from its
         scene, ``envs/scene_handoff.py``) has no plate or goal: they are drawn as a reset draws them, from the
         env's generator; then the block, in hand, is carried over its goal as the whole chain's approach carries
-        it (``tasks/carry.py``). An Insert state of its own keeps its goal."""
+        it (``tasks/carry.py``). An Insert state of its own keeps its goal, and its wrist holds the palm as the saved
+        episode did (:func:`~seqdex_drake.tasks.carry.restore_held_orientation`)."""
         if from_task and from_task != self.config.name:
             self.place_goal(env, env.np_random, env.target_object)
             carry_to_goal(env)
+        else:
+            restore_held_orientation(env)
 
     def place_goal(self, env, rng, name: str) -> None:
         """Stands a plate of 1-3 layers on the baseplate (frozen) and declares block ``name``'s goal on it: a
