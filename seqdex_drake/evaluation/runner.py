@@ -357,8 +357,7 @@ class ChainRunner:
     def is_success(self) -> bool:
         """Blocks: the target within ``BLOCK_TOLERANCE`` of its goal, out of the hand's touch and at rest
         (``BLOCK_REST_SPEED``): a block pinched 2 cm over its goal, or falling through the tolerance, is not placed.
-        Tools: within ``TOOL_TOLERANCE`` of the goal's rotation and
-        lifted at least ``TOOL_HELD_LIFT``."""
+        Tools: within ``TOOL_TOLERANCE`` of the goal's rotation and lifted at least ``TOOL_HELD_LIFT``."""
         position, rotation = self.errors()
         if self.config.family == "building_blocks":
             if position >= BLOCK_TOLERANCE[0] or rotation >= BLOCK_TOLERANCE[1]:
