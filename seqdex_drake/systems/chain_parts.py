@@ -26,6 +26,7 @@ from pydrake.systems.framework import BasicVector, Context, DiscreteValues, Even
 
 from seqdex_drake.robots.arm_ik import PalmIK
 from seqdex_drake.systems.observations import ObservationTarget
+from seqdex_drake.systems.osc import held_orientation
 from seqdex_drake.systems.policy import ACTION_SIZE, HAND_SIZE
 from seqdex_drake.tasks.carry import CARRY_REACH, MAX_CARRY_TURN, nearest_equivalent
 
@@ -233,18 +234,6 @@ class ApproachTarget(LeafSystem):
         R_err = nearest_equivalent(R_WG, X_WO.rotation(), self._goal_turns) @ X_WO.rotation().inverse()
         R_off = R_err @ X_WPalm.rotation() @ self._R_PW_hold
         return R_off if R_off.ToAngleAxis().angle() <= MAX_CARRY_TURN else RotationMatrix()
-
-
-def held_orientation(port, context: Context, R_WP_hold: RotationMatrix, cache: list) -> RotationMatrix:
-    """``R_off R_WP_hold`` for the optional ``hold_rotation`` input ``port`` (R_off row-major; unconnected: the
-    identity). ``cache`` is ``[R_off values, result]``, reused while the input is unchanged (the wrist IK caches its
-    target's matrix by the rotation's identity)."""
-    if not port.HasValue(context):
-        return R_WP_hold
-    values = np.asarray(port.Eval(context), dtype=float)
-    if cache[0] is None or not np.array_equal(values, cache[0]):
-        cache[:] = [values.copy(), RotationMatrix(values.reshape(3, 3)) @ R_WP_hold]
-    return cache[1]
 
 
 class WristTargetIntegrator(LeafSystem):

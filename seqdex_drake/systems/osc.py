@@ -53,13 +53,24 @@ from seqdex_drake.robots.allegro import PALM_BODY
 from seqdex_drake.robots.franka import FRANKA_HOME_Q, FRANKA_JOINT_NAMES
 from seqdex_drake.scenario import Scenario
 from seqdex_drake.station import MakeControllerPlant
-from seqdex_drake.systems.chain_parts import held_orientation
 from seqdex_drake.systems.osc_params import OscParams, OscStatistics
 
 __all__ = ["AddOperationalSpaceController", "OperationalSpaceController", "OscParams", "OscStatistics"]
 
 _LOGGER = logging.getLogger(__name__)
 NUM_ARM = 7
+
+
+def held_orientation(port, context: Context, R_WP_hold: RotationMatrix, cache: list) -> RotationMatrix:
+    """``R_off R_WP_hold`` for the optional ``hold_rotation`` input ``port`` (R_off row-major; unconnected: the
+    identity). ``cache`` is ``[R_off values, result]``, reused while the input is unchanged (the wrist IK caches its
+    target's matrix by the rotation's identity)."""
+    if not port.HasValue(context):
+        return R_WP_hold
+    values = np.asarray(port.Eval(context), dtype=float)
+    if cache[0] is None or not np.array_equal(values, cache[0]):
+        cache[:] = [values.copy(), RotationMatrix(values.reshape(3, 3)) @ R_WP_hold]
+    return cache[1]
 
 
 class OperationalSpaceController(LeafSystem):
@@ -199,11 +210,10 @@ class OperationalSpaceController(LeafSystem):
         return X_WPalm @ self._p_PC
 
     def _desired_acceleration(self, p_WC: np.ndarray, R_WPalm: RotationMatrix, V_WC: np.ndarray,
-                              p_WH: np.ndarray, R_WD: RotationMatrix | None = None) -> np.ndarray:
-        """Velocity-limited PD acceleration [alpha; a] (world) of the controlled point toward H and R_WD (default:
-        the held orientation)."""
+                              p_WH: np.ndarray, R_WD: RotationMatrix) -> np.ndarray:
+        """Velocity-limited PD acceleration [alpha; a] (world) of the controlled point toward H and R_WD."""
         p = self._params
-        R_err = ((self._R_WD if R_WD is None else R_WD) @ R_WPalm.inverse()).ToAngleAxis()
+        R_err = (R_WD @ R_WPalm.inverse()).ToAngleAxis()
         w_des = _clip_norm(p.orientation_kp / p.orientation_kd * R_err.angle() * R_err.axis(),
                            p.max_angular_speed)
         v_des = _clip_norm(p.position_kp / p.position_kd * (p_WH - p_WC), p.max_speed)
