@@ -94,9 +94,9 @@ def time_shipped_tick(folder: str, family: str, ticks: int) -> tuple[float, floa
     """:func:`time_tick` with a shipped chain's networks (``checkpoints/<family>``): its policies (each with its
     stage's progress input and scripted base) and F's, the first stage computing, as the chain runs it."""
     from seqdex_drake.chaining.chain import LoadChain
+    from seqdex_drake.chaining.chain_files import observation_sizes
     from seqdex_drake.chaining.feasibility_io import load_feasibility
     from seqdex_drake.chaining.shipped import load_shipped_chain
-    from seqdex_drake.evaluation.runner import observation_sizes
     from seqdex_drake.systems.chain_controller import StagePolicyParams
 
     tasks = list(LoadChain(family).stages)

@@ -21,12 +21,15 @@ from seqdex_drake.station import CANONICAL_JOINTS, MakeControllerPlant, MakeStat
 _registration.register_envs()
 
 #: Exported lazily (PEP 562): the chain controller needs torch, which ``import seqdex_drake.<module>`` must not load.
-_CHAIN_EXPORTS = ("ChainParams", "ConnectChainController", "LoadChainCheckpoints", "MakeChainController",
-                  "SetChainTarget")
+_CHAIN_EXPORTS = ("ChainParams", "ConnectChainController", "MakeChainController", "SetChainTarget")
 _POLICY_EXPORTS = ("load_policy", "Policy")
 
 
 def __getattr__(name: str):
+    if name == "LoadChainCheckpoints":  # Reads no file: no torch.
+        from seqdex_drake.chaining import chain_files
+
+        return chain_files.LoadChainCheckpoints
     if name in _CHAIN_EXPORTS:
         from seqdex_drake.systems import chain_controller
 

@@ -69,7 +69,7 @@ def test_bad_input(tmp_path):
 def test_run_dir_stages_run_the_task_variant_they_were_trained_on(tmp_path):
     """A chain run directory's stage runs its checkpoint's recorded preset (``config.json`` of ``seqdex train``
     beside it, also through a link), else the chain run's ``pipeline.json`` preset, else the paper's."""
-    from seqdex_drake.evaluation.runner import run_dir_configs
+    from seqdex_drake.chaining.chain_files import run_dir_configs
     from seqdex_drake.tasks.registry import budget_config, default_config
 
     trained = tmp_path / "training" / "grasp_run"

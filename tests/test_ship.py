@@ -9,12 +9,12 @@ import torch
 from torch.utils.tensorboard import SummaryWriter
 
 from seqdex_drake.chaining.chain import LoadChain
+from seqdex_drake.chaining.chain_files import observation_sizes
 from seqdex_drake.chaining.feasibility import FeasibilityConfig, build_feasibility_model
 from seqdex_drake.chaining.feasibility_io import save_feasibility
 from seqdex_drake.chaining.pipeline import PipelineConfig, RunDirectory
 from seqdex_drake.chaining.shipped import load_shipped_chain
 from seqdex_drake.cli.main import main
-from seqdex_drake.evaluation.runner import observation_sizes
 from seqdex_drake.rl.checkpoint import load_checkpoint
 from seqdex_drake.rl.config import PPOConfig
 from seqdex_drake.rl.ppo import PPO

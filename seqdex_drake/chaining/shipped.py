@@ -1,6 +1,6 @@
 """Shipped chain checkpoints: a chain's trained policies and feasibility functions in one checked folder.
 
-Layout (that of a chain run directory, so :func:`~seqdex_drake.systems.chain_controller.LoadChainCheckpoints`
+Layout (that of a chain run directory, so :func:`~seqdex_drake.chaining.chain_files.LoadChainCheckpoints`
 also reads it, plus a manifest)::
 
     checkpoints/<chain>/manifest.json              format, version, chain, commit, per stage and per F: the file,

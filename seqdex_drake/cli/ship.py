@@ -79,8 +79,8 @@ def stage_records(run_dir: Path, record: dict, cores: int) -> list:
 
 
 def run(args) -> int:
+    from seqdex_drake.chaining.chain_files import observation_sizes
     from seqdex_drake.chaining.shipped import ShippedChainError, load_shipped_chain, ship_chain
-    from seqdex_drake.evaluation.runner import observation_sizes
 
     run_dir = Path(args.run_dir)
     record_path = run_dir / "pipeline.json"

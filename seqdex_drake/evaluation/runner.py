@@ -65,8 +65,6 @@ TOOL_HELD_LIFT = TOOL_GOAL_LIFT / 2
 DIVERGED = 1e3
 
 
-
-
 class ChainRunError(ValueError):
     """A chain run that cannot start (bad checkpoint, unknown object, ...); the message says what to fix."""
 
@@ -106,39 +104,6 @@ class Outcome:
     """Why the simulation failed (a failed episode, as the envs truncate one); empty if it did not."""
 
 
-def observation_sizes() -> dict[str, int]:
-    """Each registered task's observation size (the base layout plus its goal or pixel part)."""
-    from seqdex_drake.observation_layout import BASE_SIZE, GOAL_SIZE
-    from seqdex_drake.tasks.registry import REGISTRY
-
-    return {name: BASE_SIZE + (GOAL_SIZE if task.goal else 0) + (1 if task.pixels else 0)
-            for name, (_, task) in REGISTRY.items()}
-
-
-def run_dir_configs(run_dir: Path, tasks: list[str], checkpoints: list) -> list:
-    """Each stage's task config as its checkpoint was trained (a policy trained on a budget variant runs with its
-    scripted phases, progress input and residual base): the preset recorded by ``seqdex train`` in the
-    ``config.json`` beside the checkpoint (a linked checkpoint: beside the file it links to), else the preset of
-    the chain run's ``pipeline.json``, else the paper's; untrained stages take their preset the same way."""
-    import json
-
-    from seqdex_drake.cli import task_config
-    from seqdex_drake.cli.rollout import PRESETS, run_preset, run_residual
-
-    try:
-        chain_preset = json.loads((run_dir / "pipeline.json").read_text())["config"]["preset"]
-    except (OSError, ValueError, KeyError, TypeError):
-        chain_preset = "paper"
-    configs = []
-    for task, checkpoint in zip(tasks, checkpoints, strict=True):
-        trained = Path(checkpoint).resolve() if checkpoint is not None else None
-        if trained is not None and (trained.parent / "config.json").is_file():
-            configs.append(task_config(task, False, run_preset(trained), residual=run_residual(trained)))
-        else:
-            configs.append(task_config(task, False, chain_preset if chain_preset in PRESETS else "paper"))
-    return configs
-
-
 class ChainRunner:
     """A station + chain controller (+ display) for one task family (see the module docstring).
 
@@ -148,11 +113,11 @@ class ChainRunner:
     """
 
     def __init__(self, config: RunConfig, meshcat=None):
+        from seqdex_drake.chaining.chain_files import LoadChainCheckpoints, observation_sizes, run_dir_configs
         from seqdex_drake.systems.chain_controller import (
             ChainParams,
             ConnectChainController,
             GetChainPolicies,
-            LoadChainCheckpoints,
             MakeChainController,
         )
         from seqdex_drake.systems.switcher import SwitcherParams

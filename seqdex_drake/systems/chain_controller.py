@@ -18,7 +18,8 @@ Outputs
     ``approach_active`` (1), ``action`` (19, applied), ``switches_used`` (1), ``approach_target`` (3).
 
 The chain's target (block body index, goal pose) is a parameter of the context: call :func:`SetChainTarget`
-after creating the context and before simulating. :func:`LoadChainCheckpoints` finds a chain run's files.
+after creating the context and before simulating.
+:func:`~seqdex_drake.chaining.chain_files.LoadChainCheckpoints` finds a chain run's files.
 Several controllers in one diagram need distinct names: ``MakeChainController(..., name=...)`` names the
 Diagram and prefixes its Meshcat marker's path, as ``MakeStation``'s ``name`` does for a station.
 """
@@ -28,11 +29,11 @@ from __future__ import annotations
 import dataclasses
 import os
 from collections.abc import Sequence
-from pathlib import Path
 
 import numpy as np
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder
 
+from seqdex_drake.chaining.chain_files import check_chain_task
 from seqdex_drake.chaining.feasibility_io import FeasibilityFile, load_feasibility
 from seqdex_drake.rl.networks import ActorCritic
 from seqdex_drake.robots.allegro import p_PalmHc_Palm
@@ -109,63 +110,6 @@ class ChainParams:
     stage_configs: Sequence | None = None
     """Each stage's :class:`~seqdex_drake.tasks.base.TaskConfig` as its policy was trained (EMA, wrist step,
     episode length, scripted phases; ``seqdex_drake.chaining.shipped`` records them); None: the tasks' defaults."""
-
-
-@dataclasses.dataclass
-class ChainCheckpoints:
-    """What :func:`LoadChainCheckpoints` found; pass ``stages`` and ``feasibility`` to :func:`MakeChainController`."""
-
-    tasks: list[str]
-    """The chain's tasks, in order."""
-    policies: list[Path | None]
-    """Per stage, the policy checkpoint (``best.pt``, else ``last.pt``), or None (untrained)."""
-    feasibility: list[Path | None]
-    """Per stage, its feasibility file, or None (stage 0 never has one)."""
-    missing: list[str]
-    """One human-readable line per missing file (print them)."""
-
-    @property
-    def stages(self) -> list[tuple[str, Path | None]]:
-        return list(zip(self.tasks, self.policies, strict=True))
-
-
-def LoadChainCheckpoints(run_dir: str | os.PathLike, tasks: Sequence[str]) -> ChainCheckpoints:
-    """Finds a chain run's files: ``<run_dir>/stages/<task>/best.pt`` (else ``last.pt``) per stage and
-    ``<run_dir>/feasibility/<task>.pt`` (the F predicting ``<task>``'s return from the previous stage's
-    history) for every stage after the first. Missing files are listed in ``missing``, not raised.
-
-    Raises:
-        FileNotFoundError: ``run_dir`` is not a directory.
-        ValueError: an unknown task name (the message lists the registered ones) or an empty chain.
-    """
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise FileNotFoundError(f"chain run directory {run_dir} does not exist")
-    tasks = [_check_task(task) for task in tasks]
-    if not tasks:
-        raise ValueError("a chain needs at least one task")
-    policies, feasibility, missing = [], [], []
-    for i, task in enumerate(tasks):
-        candidates = [run_dir / "stages" / task / name for name in ("best.pt", "last.pt")]
-        found = next((path for path in candidates if path.is_file()), None)
-        policies.append(found)
-        if found is None:
-            missing.append(f"stage {i} ({task}): no policy checkpoint {candidates[0]} or {candidates[1].name}; "
-                           f"the stage runs an untrained policy")
-        path = run_dir / "feasibility" / f"{task}.pt"
-        feasibility.append(path if i > 0 and path.is_file() else None)
-        if i > 0 and not path.is_file():
-            missing.append(f"stage {i} ({task}): no feasibility function {path}; switching into it follows the "
-                           f"sequential rule (step budget / stage_success)")
-    return ChainCheckpoints(tasks, policies, feasibility, missing)
-
-
-def _check_task(task: str) -> str:
-    from seqdex_drake.tasks.registry import REGISTRY
-
-    if task not in REGISTRY:
-        raise ValueError(f"unknown task {task!r} in the chain; registered tasks: {', '.join(REGISTRY)}")
-    return task
 
 
 def _layout(task: str) -> tuple[bool, bool]:
@@ -251,7 +195,7 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
         torch.set_num_threads(params.torch_threads)
     if params.blas_threads:
         limit_blas_threads(params.blas_threads)
-    tasks = [_check_task(task) for task, _ in stages]
+    tasks = [check_chain_task(task) for task, _ in stages]
     if not tasks:
         raise ValueError("a chain needs at least one stage")
     feasibility = [None] * len(tasks) if feasibility is None else list(feasibility)
