@@ -83,6 +83,26 @@ def test_collect_writes_loadable_buffer(grasp_run, tmp_path, capsys):
     assert buffer.histories.shape == (len(buffer), 10, 159) and np.isfinite(buffer.returns).all()
 
 
+def test_collect_takes_the_preset_of_a_checkpoint_without_its_run_record(tmp_path, capsys):
+    """A shipped stage checkpoint (``checkpoints/<family>/stages/<task>/best.pt``) has no config.json beside it:
+    the budget variant's policy (160 observations for grasp) is refused for the paper env with a hint to
+    ``--preset``, and collects with ``--preset budget``."""
+    run_dir = tmp_path / "run"
+    assert main(["train", "--task", "grasp", "--test", "--run-dir", str(run_dir), "--num-envs", "2",
+                 "--preset", "budget"]) == 0
+    shipped = tmp_path / "stages" / "grasp" / "best.pt"
+    shipped.parent.mkdir(parents=True)
+    shutil.copy(run_dir / "last.pt", shipped)
+    capsys.readouterr()
+    out = tmp_path / "buffer.npz"
+    args = ["collect", "--task", "grasp", "--test", "--checkpoint", str(shipped), "--out", str(out)]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "160 observations" in err and "--preset" in err and "Traceback" not in err and not out.exists()
+    assert main(args + ["--preset", "budget"]) == 0
+    assert TerminalBuffer.load(out, expected_task="insert").obs_spec.dim == 160
+
+
 def test_collect_refuses_last_task_and_missing_checkpoint(tmp_path, capsys):
     assert main(["collect", "--task", "insert", "--test", "--run-dir", str(tmp_path)]) == 2
     assert "last sub-task" in capsys.readouterr().err

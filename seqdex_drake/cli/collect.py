@@ -95,12 +95,14 @@ def run(args) -> int:
     from seqdex_drake.cli.rollout import run_preset, run_residual
 
     # The variant the policy was trained on.
-    config = task_config(args.task, args.test, run_preset(checkpoint), residual=run_residual(checkpoint))
+    preset = args.preset or run_preset(checkpoint)
+    config = task_config(args.task, args.test, preset, residual=run_residual(checkpoint))
     env = make_env(args.task, config)
     dim = env.observation_space.shape[0]
     if ppo.obs_dim != dim or ppo.action_dim != env.action_space.shape[0]:
         raise CliError(f"checkpoint {checkpoint} is a policy for {ppo.obs_dim} observations / {ppo.action_dim} "
-                       f"actions, the {args.task} env has {dim} / {env.action_space.shape[0]}: another task's run?")
+                       f"actions, the {args.task} env ({preset} preset) has {dim} / "
+                       f"{env.action_space.shape[0]}: another task's run, or another preset (--preset)?")
     spec = observation_spec(args.task, dim)
     if ppo.obs_spec is not None and ppo.obs_spec.get("digest") != spec.digest:
         raise CliError(f"checkpoint {checkpoint} is a policy for '{ppo.obs_spec.get('description')}', but "

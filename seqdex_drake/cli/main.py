@@ -77,6 +77,10 @@ def build_parser() -> argparse.ArgumentParser:
     collect.add_argument("--episodes", type=int, help="episodes to roll out (default: 100; 2 with --test)")
     collect.add_argument("--out", help="the buffer file (default: <run-dir>/terminal_<task>_to_<next>.npz)")
     collect.add_argument("--keep-failures", action="store_true", help="also record unsuccessful episodes")
+    collect.add_argument("--preset", choices=("budget", "paper"),
+                         help="the task variant the policy was trained on (default: the preset in the run's "
+                              "config.json beside the checkpoint, else paper); e.g. budget for a shipped stage "
+                              "checkpoint (checkpoints/<family>/stages/<task>/best.pt)")
 
     from seqdex_drake.cli import evaluate, pipeline, rollout, ship
 
