@@ -181,6 +181,32 @@ def test_train_with_initial_states(tmp_path, capsys):
     assert "first sub-task" in capsys.readouterr().err
 
 
+def test_train_from_hand_offs_saved_on_another_scene(tmp_path, capsys):
+    """Insert trains on its boards from Grasp's states, saved in the box (another plant size): the hand-off carries
+    the robot and the block over. A state without those fields is refused before training, saying why."""
+    import dataclasses
+
+    from seqdex_drake.tasks.registry import make_env
+
+    env = make_env("grasp", task_config("grasp", True))
+    observation, _ = env.reset(seed=3)
+    observations = [observation] + [env.step(np.zeros(19))[0] for _ in range(10)]
+    state = env.get_state()
+    for name, saved in (("carried.npz", state), ("bare.npz", dataclasses.replace(state, robot_positions=np.zeros(0)))):
+        buffer = TerminalBuffer("grasp", "insert", env.config.scenario, observation_spec("grasp", observation.size),
+                                10)
+        buffer.append(saved, np.stack(observations), 1.0, True)
+        buffer.save(tmp_path / name)
+    args = ["train", "--task", "insert", "--test", "--preset", "paper", "--initial-states"]
+    assert main(args + [str(tmp_path / "carried.npz"), "--run-dir", str(tmp_path / "carried")]) == 0
+    assert _steps(tmp_path / "carried" / "last.pt") == 2 * TEST_HORIZON
+    capsys.readouterr()
+    assert main(args + [str(tmp_path / "bare.npz"), "--run-dir", str(tmp_path / "bare")]) == 2
+    err = capsys.readouterr().err
+    assert "grasp states" in err and "lacks the robot and target fields" in err and "Traceback" not in err
+    assert not (tmp_path / "bare" / "last.pt").exists()
+
+
 def test_rollout_from_a_hand_off_buffer(tmp_path, capsys):
     buffer, out = str(tmp_path / "tool.npz"), tmp_path / "rollout.json"
     state = _tool_grasp_buffer(buffer)

@@ -97,16 +97,21 @@ def _saved_demos(run_dir: Path):
         return None
 
 
-def _check_state_layout(env, buffer) -> None:
-    """Raises :class:`CliError` if the buffer's states do not fit the env's plant (another scenario)."""
+def _check_state_layout(env, buffer, scenario: str) -> None:
+    """Raises :class:`CliError` if the buffer's states cannot start the env's episodes: saved on another scene
+    (another plant size) without the fields a hand-off across scenes carries (``envs/scene_handoff.py``)."""
+    from seqdex_drake.env_state import SceneHandoffError
+    from seqdex_drake.envs.scene_handoff import check_carried
     from seqdex_drake.envs.subtask_env import EnvState
 
     ours = env.get_states()[0]
     theirs = buffer.state(int(np.flatnonzero(buffer.successes)[0]), EnvState)
-    for field in ("plant_positions", "plant_velocities"):
-        if np.shape(getattr(ours, field)) != np.shape(getattr(theirs, field)):
-            raise CliError(f"the buffer's states have {field} of shape {np.shape(getattr(theirs, field))}, the "
-                           f"{buffer.target_task} env has {np.shape(getattr(ours, field))}: another station")
+    if np.shape(ours.plant_positions) == np.shape(theirs.plant_positions):
+        return
+    try:
+        check_carried(theirs, np.size(ours.plant_positions), scenario)
+    except SceneHandoffError as error:
+        raise CliError(f"the buffer's {buffer.source_task} states: {error}") from error
 
 
 def _new_run(args, run_dir: Path, config) -> tuple:
@@ -287,7 +292,7 @@ def _train(args, run_dir: Path, stop) -> int:
         return _stopped(args, run_dir, stop, ppo, trained=False)  # A terminal's Ctrl-C also ended the workers.
     try:
         if buffer is not None:
-            _check_state_layout(vec_env, buffer)
+            _check_state_layout(vec_env, buffer, config.scenario)
             vec_env = InitialStateVectorEnv(vec_env, buffer, ppo_config.seed, EnvState)
         obs_dim = vec_env.single_observation_space.shape[0]
         if demos is not None and demos.observations.shape[1] != obs_dim:

@@ -38,16 +38,22 @@ def capture(env, state: EnvState) -> EnvState:
     return state
 
 
+def check_carried(state: EnvState, num_positions: int, scenario: str) -> None:
+    """Raises :class:`SceneHandoffError` unless ``state``, saved on a scene whose plant has another size than
+    ``num_positions`` (``scenario``'s), carries the robot and target fields a hand-off across scenes needs."""
+    if np.size(state.robot_positions) != 23 or (state.target_object and np.size(state.target_positions) != 7):
+        raise SceneHandoffError(
+            f"this state was saved on a scene with {np.size(state.plant_positions)} plant positions, this env's "
+            f"({scenario}) has {num_positions}, and it lacks the robot and target fields a hand-off across scenes "
+            f"needs (saved by an older version?); collect the terminal buffer again")
+
+
 def restore(env, state: EnvState) -> None:
     """Puts ``env`` in ``state`` saved on another scene: the robot and the target object carried over, every other
     object parked (see the module docstring). The caller then restores the command sources (PD targets, previous
     action) and the sampled outputs, as for a state of its own scene. Raises :class:`SceneHandoffError` for a
     state without the carried fields or a target with no counterpart here."""
-    if np.size(state.robot_positions) != 23 or (state.target_object and np.size(state.target_positions) != 7):
-        raise SceneHandoffError(
-            f"this state was saved on a scene with {np.size(state.plant_positions)} plant positions, this env's "
-            f"({env.config.scenario}) has {env.plant.num_positions()}, and it lacks the robot and target fields a "
-            f"hand-off across scenes needs (saved by an older version?); collect the terminal buffer again")
+    check_carried(state, env.plant.num_positions(), env.config.scenario)
     env.context.SetTime(float(state.time))
     env.objects.park(env.context)
     env.objects.forget_motion()
