@@ -58,6 +58,12 @@ the roll stops; 8 upside-down curved blocks (types 2 and 3, resting pitched) tha
 back, ending mid-roll at step 75; 6 upside-down bricks (types 1, 4, 5) that tip back or over; 4 side-lying
 blocks, 2 of them stood up and then toppled over the other edge as the tip moved away. No episode ended in a
 simulator error or with the block out of the box.
+
+In the whole pile (Search's 58 hand-offs, ``seqdex rollout --task orient --zero-action --scene
+building_blocks/search``, ``results/building_blocks.md``) it stands 10 / 58 up, 4 of them upright already. The
+strokes' heights assume the box floor under the block; taking the block's lowest point instead (it often lies on
+other blocks) stood 6 / 58 up: the stroke's start on the e side is mostly taken by a neighbour as high as the
+block or higher, which stops the fingertip above the face (traced) and would stop the roll anyway.
 """
 
 from __future__ import annotations
