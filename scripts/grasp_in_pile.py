@@ -9,7 +9,7 @@ block counts as lifted if it is 0.30 m (Grasp's success lift) above its upright 
     python scripts/grasp_in_pile.py --episodes 30 --out results/building_blocks/grasp_in_pile.json
     python scripts/grasp_in_pile.py --test          # one short episode, for CI
 
-Writes JSON: per episode the pile, block, pose, whether it stood (upright when Grasp started: tilt < 20 deg),
+Writes JSON: per episode the pile, block, position, whether it stood (upright when Grasp started: tilt < 20 deg),
 its rise at Insert's entry and whether it was lifted; and the counts. About 40 s per episode on a core.
 """
 
@@ -52,8 +52,7 @@ def run_episode(runner, seed: int, episode: int, time_limit: float) -> dict:
     runner.context.SetTime(0.0)
     rng = np.random.default_rng([seed, episode])
     block_type = TYPES[episode % len(TYPES)]
-    pile = int(rng.integers(1 << 30))
-    runner.restore_pile(pile)
+    pile = runner.restore_pile(int(rng.integers(1 << 30)))
     yaws = runner.stage_configs[runner.tasks.index("insert")].goal_yaws_deg
     name = runner.start_block(block_type, sample_goal(block_type, rng, yaws), reset_robot=True)
     p_start = stand_upright(runner, name, block_type)
@@ -70,7 +69,7 @@ def run_episode(runner, seed: int, episode: int, time_limit: float) -> dict:
     runner.run(time_limit, on_tick=record)
     stood = entries.get("grasp", [0.0])[0] >= np.cos(np.radians(UPRIGHT_DEG))
     rise = entries.get("insert", [0.0, 0.0])[1]
-    return {"episode": episode, "pile": pile % 8, "block_type": block_type, "block": name,
+    return {"episode": episode, "pile": pile, "block_type": block_type, "block": name,
             "position": np.round(p_start, 4).tolist(), "stood": bool(stood), "rise": round(rise, 4),
             "lifted": bool(stood and rise >= LIFT)}
 

@@ -211,12 +211,14 @@ class ChainRunner:
     def plant_context(self):
         return self.plant.GetMyMutableContextFromRoot(self.context)
 
-    def restore_pile(self, index: int) -> None:
-        """Restores cached pile ``index`` (modulo the number cached), every block frozen until targeted."""
+    def restore_pile(self, index: int) -> int:
+        """Restores cached pile ``index`` (modulo the number cached), every block frozen until targeted; returns
+        the cached pile's number."""
         piles = LoadPiles(ResolvePackageUrl(self.scenario.pile_file), self.objects.names)
         self.objects.set_positions(self.context, piles[index % len(piles)],
                                    frozen=np.ones(len(self.objects.names), dtype=bool))
         self._used: set[str] = set()
+        return index % len(piles)
 
     def pick_block(self, block_type: int) -> str:
         """The unused block of ``block_type`` to fetch next, the easiest first
