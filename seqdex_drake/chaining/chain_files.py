@@ -10,6 +10,7 @@ nor Drake); :func:`run_dir_configs` gives each stage's task config as its checkp
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -88,8 +89,6 @@ def run_dir_configs(run_dir: Path, tasks: list[str], checkpoints: list) -> list:
     scripted phases, progress input and residual base): the preset recorded by ``seqdex train`` in the
     ``config.json`` beside the checkpoint (a linked checkpoint: beside the file it links to), else the preset of
     the chain run's ``pipeline.json``, else the paper's; untrained stages take their preset the same way."""
-    import json
-
     from seqdex_drake.cli import task_config
     from seqdex_drake.cli.rollout import PRESETS, run_preset, run_residual
 
