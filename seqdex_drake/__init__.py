@@ -26,7 +26,7 @@ _POLICY_EXPORTS = ("load_policy", "Policy")
 
 
 def __getattr__(name: str):
-    if name == "LoadChainCheckpoints":  # Reads no file: no torch.
+    if name == "LoadChainCheckpoints":  # Only looks for files: no torch.
         from seqdex_drake.chaining import chain_files
 
         return chain_files.LoadChainCheckpoints

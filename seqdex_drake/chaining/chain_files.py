@@ -2,7 +2,7 @@
 into it (the layout ``seqdex pipeline`` writes and ``seqdex ship`` copies into ``checkpoints/<family>/``).
 
 :func:`LoadChainCheckpoints` finds them for
-:func:`~seqdex_drake.systems.chain_controller.MakeChainController` (it reads no file, so it needs neither torch
+:func:`~seqdex_drake.systems.chain_controller.MakeChainController` (it only looks for files: it needs neither torch
 nor Drake); :func:`run_dir_configs` gives each stage's task config as its checkpoint was trained, and
 :func:`observation_sizes` each task's observation size, which a shipped chain's files are checked against.
 """
