@@ -21,6 +21,7 @@ import sys
 from collections.abc import Sequence
 
 from seqdex_drake.cli import CliError
+from seqdex_drake.cli.rollout import PRESETS
 
 
 def _common(parser: argparse.ArgumentParser, tasks: list[str], resume_help: str) -> None:
@@ -50,7 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
                             "horizon steps are run, so the run stops at the first multiple at or above it")
     train.add_argument("--num-envs", type=int,
                        help="parallel envs (default: the preset's, 32 for budget, 16 for paper)")
-    train.add_argument("--preset", choices=("budget", "paper"), default="budget",
+    train.add_argument("--preset", choices=PRESETS, default="budget",
                        help="budget (default): the small-budget task variant where the task has one (the release's "
                             "scripted phases) and PPO hyperparameters that fit two CPU cores; paper: the paper's MDP "
                             "and its PPO tables (for users with a cluster)")
@@ -77,7 +78,7 @@ def build_parser() -> argparse.ArgumentParser:
     collect.add_argument("--episodes", type=int, help="episodes to roll out (default: 100; 2 with --test)")
     collect.add_argument("--out", help="the buffer file (default: <run-dir>/terminal_<task>_to_<next>.npz)")
     collect.add_argument("--keep-failures", action="store_true", help="also record unsuccessful episodes")
-    collect.add_argument("--preset", choices=("budget", "paper"),
+    collect.add_argument("--preset", choices=PRESETS,
                          help="the task variant the policy was trained on (default: the preset in the run's "
                               "config.json beside the checkpoint, else paper); e.g. budget for a shipped stage "
                               "checkpoint (checkpoints/<family>/stages/<task>/best.pt)")
