@@ -44,6 +44,7 @@ def test_evaluate_test_writes_tables_and_plot(tmp_path):
     assert len(records) == 3 + 4  # 3 tools, then the hammer for each switch cap
     assert {r["experiment"] for r in records} == {"main", "switching"}
     # Each record says how the object was as each stage started: [its z axis's world z, its lift (m)].
+    assert {r["start"]["tool"] for r in records if r["experiment"] == "main"} == {"hammer", "spatula", "spoon"}
     entry = records[0]["stage_entries"]["tool_grasp"]
     assert -1.0 <= entry[0] <= 1.0 and abs(entry[1]) < 0.01  # Grasp starts with the tool on the table.
     assert "object lifted >= 0.1 m when Reorient started: 0 / 3 episodes" in table
@@ -98,3 +99,24 @@ def test_block_goals_are_drawn_at_the_yaws_insert_was_trained_for():
     rng = np.random.default_rng(0)
     assert {yaw(sample_goal(5, rng)) for _ in range(30)} == {0, 90}
     assert {yaw(sample_goal(5, rng, [90.0])) for _ in range(30)} == {90}
+
+
+def test_block_episode_records_its_start_and_the_notes_count_distinct_starts():
+    """A Building Blocks episode records its (cached pile, block) start; two episodes seeded alike repeat it, and
+    the table's notes count the distinct starts (with 8 cached piles, episodes of one type repeat starts)."""
+    import types
+
+    from seqdex_drake.evaluation.episodes import handover_notes, run_episode
+    from seqdex_drake.evaluation.runner import ChainRunner, RunConfig
+
+    runner = ChainRunner(RunConfig(family="building_blocks", stage_steps=(2, 2, 2, 2),
+                                   untrained_hidden_sizes=(8,)))
+    config = types.SimpleNamespace(family="building_blocks", time_limit=0.05)
+    first, _, _ = run_episode(runner, config, 5, seed=0, episode=0, scatter=False)
+    again, _, _ = run_episode(runner, config, 5, seed=0, episode=0, scatter=False)
+    assert first["start"] == again["start"] and first["start"]["block"].startswith("block_5_")
+    assert 0 <= first["start"]["pile"] < 8
+    other = dict(first, start={"pile": (first["start"]["pile"] + 1) % 8, "block": "block_5_0"})
+    notes = handover_notes("building_blocks", [first, again, other])
+    assert "distinct starts (cached pile, block): 2 in 3 episodes" in notes
+    assert not any("distinct" in note for note in handover_notes("building_blocks", [{"success": False}]))

@@ -37,11 +37,12 @@ def run_episode(runner: ChainRunner, config, key, seed: int, episode: int,
     runner.context.SetTime(0.0)
     rng = np.random.default_rng([seed, int(key), episode])
     if config.family == "building_blocks":
-        runner.restore_pile(int(rng.integers(1 << 30)))
+        pile = runner.restore_pile(int(rng.integers(1 << 30)))
         yaws = runner.stage_configs[runner.tasks.index("insert")].goal_yaws_deg  # As Insert was trained.
-        runner.start_block(int(key), sample_goal(int(key), rng, yaws), reset_robot=True)
+        name = runner.start_block(int(key), sample_goal(int(key), rng, yaws), reset_robot=True)
+        start = {"pile": pile, "block": name}  # Episodes with the same start differ only in their goal.
     else:
-        runner.start_tool(int(key), rng)
+        start = {"tool": runner.start_tool(int(key), rng)}
     stage = runner.tasks.index(SCATTER_STAGE[config.family])
     rpy, scores = [], []
     start_height = runner.object_pose().translation()[2]
@@ -63,7 +64,7 @@ def run_episode(runner: ChainRunner, config, key, seed: int, episode: int,
     outcome = runner.run(limit, on_tick=record)
     result = {"success": bool(outcome.success), "time": outcome.time, "switches": outcome.switches,
               "last_stage": outcome.last_stage, "position_error": outcome.position_error,
-              "rotation_error": outcome.rotation_error, "stage_entries": entries,
+              "rotation_error": outcome.rotation_error, "stage_entries": entries, "start": start,
               **({"simulator_error": outcome.simulator_error} if outcome.simulator_error else {})}
     return result, rpy, scores
 
@@ -71,7 +72,9 @@ def run_episode(runner: ChainRunner, config, key, seed: int, episode: int,
 def handover_notes(family: str, results: list[dict]) -> list[str]:
     """Where the episodes of a chain got to, from their ``stage_entries``: for Building Blocks, how many reached
     Grasp with the block upright (Orient's success: its z axis within acos(0.6) of world z) and Insert with it
-    lifted at least ``HELD_LIFT`` (Grasp's); for Tool Positioning, how many reached Reorient with the tool lifted."""
+    lifted at least ``HELD_LIFT`` (Grasp's); for Tool Positioning, how many reached Reorient with the tool lifted.
+    For Building Blocks episodes that record their ``start``, also how many distinct (cached pile, block) starts
+    they had: with few cached piles, episodes of one block type repeat a start."""
     checks = {"building_blocks": [("grasp", 0, 0.6, "upright when Grasp started"),
                                   ("insert", 1, HELD_LIFT, f"lifted >= {HELD_LIFT} m when Insert started")],
               "tool_positioning": [("tool_reorient", 1, HELD_LIFT, f"lifted >= {HELD_LIFT} m when Reorient "
@@ -80,6 +83,10 @@ def handover_notes(family: str, results: list[dict]) -> list[str]:
     for task, index, bound, what in checks:
         count = sum(1 for r in results if r.get("stage_entries", {}).get(task, [-np.inf] * 2)[index] > bound)
         notes.append(f"object {what}: {count} / {len(results)} episodes")
+    starts = [r["start"] for r in results if "pile" in r.get("start", {})]
+    if starts:  # A block type's episodes on one cached pile fetch the same block: fewer independent trials.
+        distinct = len({(s["pile"], s["block"]) for s in starts})
+        notes.append(f"distinct starts (cached pile, block): {distinct} in {len(starts)} episodes")
     return notes
 
 
