@@ -43,8 +43,8 @@ def test_evaluate_test_writes_tables_and_plot(tmp_path):
     records = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
     assert len(records) == 3 + 4  # 3 tools, then the hammer for each switch cap
     assert {r["experiment"] for r in records} == {"main", "switching"}
-    # Each record says how the object was as each stage started: [its z axis's world z, its lift (m)].
     assert {r["start"]["tool"] for r in records if r["experiment"] == "main"} == {"hammer", "spatula", "spoon"}
+    # Each record says how the object was as each stage started: [its z axis's world z, its lift (m)].
     entry = records[0]["stage_entries"]["tool_grasp"]
     assert -1.0 <= entry[0] <= 1.0 and abs(entry[1]) < 0.01  # Grasp starts with the tool on the table.
     assert "object lifted >= 0.1 m when Reorient started: 0 / 3 episodes" in table
