@@ -96,6 +96,46 @@ def test_feasibility_subcommand_sets_the_architecture(runs, tmp_path, capsys):
         assert message in capsys.readouterr().err
 
 
+def test_feasibility_subcommand_recollects_with_a_stage_on_another_scene(runs, tmp_path, capsys):
+    from seqdex_drake.chaining.stage_envs import _ENV_POOL
+
+    run = str(runs / "seqdex")
+    assert main(["feasibility", "--run-dir", run, "--task", "lower", "--recollect", "--scene", "lower=handover/reach",
+                 "--out", str(tmp_path / "lower_on_reach.pt")]) == 0
+    done = json.loads((runs / "seqdex" / "pipeline.json").read_text())["done"]
+    assert done["feasibility_cli_lower_h10"]["scenes"] == {"lower": "handover/reach"}
+    assert done["transitions_recollect_lower_i0_lower@handover-reach"]["episodes"] > 0
+    # The collection's Lower env was built on the Reach scene.
+    assert any(task == "lower" and "scenario='handover/reach'" in config for task, config, _ in _ENV_POOL)
+    for bad, message in ((["--scene", "lower=handover/reach"], "needs --recollect"),
+                         (["--recollect", "--scene", "lower=handover/nope"], "does not load"),
+                         (["--recollect", "--scene", "grasp=handover/reach"], "not a stage"),
+                         (["--recollect", "--scene", "lower"], "expected TASK=SCENARIO"),
+                         (["--recollect", "--scene", "lower=handover/reach", "--scene", "lower=handover/lower"],
+                          "twice")):
+        assert main(["feasibility", "--run-dir", run, "--task", "lower", *bad]) == 2
+        assert message in capsys.readouterr().err
+
+
+def test_feasibility_subcommand_reports_transitions_that_cannot_define_f(runs, tmp_path, monkeypatch, capsys):
+    """Transitions whose successful returns give no positive threshold h: exit 1 with the reason, no traceback,
+    no F written, the transitions kept."""
+    import seqdex_drake.chaining.bidirectional as bidirectional
+
+    transitions = runs / "seqdex" / "transitions" / "lower.npz"
+    before = transitions.read_bytes()
+    with np.load(transitions) as data:
+        shifted = {key: data[key] for key in data.files}
+    shifted["returns"] = shifted["returns"] - shifted["returns"].max() - 1.0  # Every return negative ...
+    shifted["successes"] = np.ones_like(shifted["successes"])  # ... successes' included.
+    monkeypatch.setattr(bidirectional.Pipeline, "transition_data", lambda self, index: shifted)
+    out = tmp_path / "never.pt"
+    assert main(["feasibility", "--run-dir", str(runs / "seqdex"), "--task", "lower", "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "cannot be fitted" in err and "is not positive" in err and "Traceback" not in err
+    assert not out.exists() and transitions.read_bytes() == before
+
+
 def test_finetune_subcommand_continues_a_run(runs, capsys):
     assert main(["finetune", "--run-dir", str(runs / "tstar")]) == 0
     assert "chain success" in capsys.readouterr().out

@@ -228,6 +228,34 @@ def test_rollout_from_a_hand_off_buffer(tmp_path, capsys):
     assert "target task 'tool_reorient'" in capsys.readouterr().err
 
 
+def test_rollout_of_chosen_objects_records_each_episodes_object(tmp_path, capsys):
+    """``--objects 7 8`` resets Grasp with the unseen block types only; each episode records its block and the
+    summary counts them per type. Names outside the family, a task without objects and hand-offs are refused."""
+    out = tmp_path / "unseen.json"
+    assert main(["rollout", "--task", "grasp", "--zero-action", "--test", "--episodes", "4", "--objects", "7", "8",
+                 "--out", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert result["object_types"] == [7, 8]
+    kinds = [record["object"].split("_")[1] for record in result["per_episode"]]
+    assert set(kinds) <= {"7", "8"} and len(kinds) == 4
+    per_object = result["per_object"]
+    assert sum(counts["episodes"] for counts in per_object.values()) == 4
+    assert {f"block {kind}" for kind in kinds} == set(per_object)
+    assert sum(counts["successes"] for counts in per_object.values()) == sum(
+        record["success"] for record in result["per_episode"])
+    capsys.readouterr()
+    for bad, message in ((["--task", "grasp", "--objects", "9"], "unknown block type '9'"),
+                         (["--task", "tool_grasp", "--objects", "3"], "unknown tool '3'"),
+                         (["--task", "reach", "--objects", "1"], "nothing to choose")):
+        assert main(["rollout", "--zero-action", "--test", *bad]) == 2
+        assert message in capsys.readouterr().err
+    buffer = str(tmp_path / "tool.npz")
+    _tool_grasp_buffer(buffer)
+    assert main(["rollout", "--task", "tool_reorient", "--zero-action", "--test", "--initial-states", buffer,
+                 "--objects", "hammer"]) == 2
+    assert "each hand-off fixes it" in capsys.readouterr().err
+
+
 def test_rollout_on_another_scene_from_a_hand_off_buffer(tmp_path, capsys):
     """``--scene`` runs a sub-task on another station scenario (block Orient in the whole pile): the hand-offs
     restore that scene's state; without hand-offs, or with an unknown scenario, it is refused before any rollout."""

@@ -2,7 +2,8 @@
 
     seqdex pipeline --chain handover --method seqdex [--stage-steps N] [--finetune-steps N] [--iterations M]
                     [--preset paper|budget] [--init TASK=CHECKPOINT ...] [--num-envs N]
-    seqdex feasibility --run-dir RUN --task lower [--history H] [--no-temporal] [--recollect [--intermediate N]]
+    seqdex feasibility --run-dir RUN --task lower [--history H] [--no-temporal]
+                       [--recollect [--intermediate N] [--scene TASK=SCENARIO ...]]
                        [--d-model W] [--heads N] [--layers L] [--feedforward W]
     seqdex finetune --run-dir RUN
 
@@ -12,10 +13,13 @@ interrupted run where it stopped. ``--preset budget`` trains each stage's small-
 PPO preset, and ``--init`` continues a stage's forward phase from a ``seqdex train`` run (``--stage-steps 0``
 when every stage has one: the runs already trained count as the forward phase). ``feasibility`` (re)trains F
 for one stage of a run from its saved transitions (collecting them first if needed), e.g. for the history
-ablation (``--history 0/5/10/15`` writes ``feasibility/<task>_h<H>.pt``). ``finetune`` runs the backward
-passes of a run whose forward phase is done.
+ablation (``--history 0/5/10/15`` writes ``feasibility/<task>_h<H>.pt``); ``--scene`` recollects with stages run
+on another station scene than the one they trained on (Building Blocks: Orient and Grasp in the whole pile, as
+the chain runs them: ``--scene orient=building_blocks/search --scene grasp=building_blocks/search``).
+``finetune`` runs the backward passes of a run whose forward phase is done.
 """
 
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -70,6 +74,10 @@ def add_parsers(commands) -> None:
     feasibility.add_argument("--intermediate", type=int, default=0, metavar="N",
                              help="with --recollect: N more rollouts that hand over after a random number of the "
                              "previous stage's steps, so F also knows the states the switcher scores mid-stage")
+    feasibility.add_argument("--scene", action="append", default=[], metavar="TASK=SCENARIO",
+                             help="with --recollect: run stage TASK (this one or an earlier one) on this station "
+                             "scenario, e.g. orient=building_blocks/search (Orient in the whole pile, as the "
+                             "chain runs it, instead of its training scene); repeatable")
     defaults = FeasibilityConfig()
     for flag, name, what in (("--d-model", "d_model", "embedding and attention width"),
                              ("--heads", "heads", "attention heads"), ("--layers", "layers", "encoder layers"),
@@ -175,6 +183,30 @@ def _open(args):
         raise CliError(str(error)) from error
 
 
+def _scenes(values: list[str], stages: list[str], task: str, recollect: bool) -> dict[str, str]:
+    """``--scene TASK=SCENARIO`` flags as a dict; :class:`CliError` for a malformed one, a stage that does not run
+    in the collection (after ``task``, or not in the chain), a scenario that does not load, or no ``--recollect``."""
+    from seqdex_drake.scenario import LoadScenario, ScenarioError
+
+    if values and not recollect:
+        raise CliError("--scene needs --recollect: it changes where the transitions are collected")
+    scenes = {}
+    for value in values:
+        stage, sep, scene = value.partition("=")
+        if not sep or not stage or not scene:
+            raise CliError(f"--scene {value!r}: expected TASK=SCENARIO, e.g. --scene orient=building_blocks/search")
+        if stage in scenes:
+            raise CliError(f"--scene names {stage} twice")
+        if stage not in stages:
+            raise CliError(f"--scene {stage}: not a stage the collection for {task} runs ({', '.join(stages)})")
+        try:
+            LoadScenario(scene)
+        except (ScenarioError, OSError, ValueError, KeyError) as error:
+            raise CliError(f"--scene {stage}: scenario {scene!r} does not load: {error}") from error
+        scenes[stage] = scene
+    return scenes
+
+
 def run_feasibility(args) -> int:
     from seqdex_drake.chaining.feasibility import FeasibilityConfig
 
@@ -191,6 +223,10 @@ def run_feasibility(args) -> int:
             raise CliError(f"{pipeline.run.policy(task)} is missing; run seqdex pipeline on {args.run_dir} first")
     if args.intermediate < 0 or (args.intermediate and not args.recollect):
         raise CliError("--intermediate takes a count >= 0 and needs --recollect")
+    scenes = _scenes(args.scene, pipeline.stages[:index + 1], args.task, args.recollect)
+    for task, scene in scenes.items():
+        position = pipeline.stages.index(task)
+        pipeline.task_configs[position] = dataclasses.replace(pipeline.task_configs[position], scenario=scene)
     architecture = {name: getattr(args, name) for name in ("d_model", "heads", "layers", "feedforward")}
     if min(architecture.values()) < 1:
         raise CliError(f"--d-model, --heads, --layers and --feedforward must be >= 1, got {architecture}")
@@ -200,7 +236,8 @@ def run_feasibility(args) -> int:
         raise CliError(f"bad F architecture: {error}") from error
     try:
         if args.recollect:  # Its own phase name: an interrupted recollection resumes, a finished one is kept.
-            phase = f"transitions_recollect_{args.task}_i{args.intermediate}"
+            phase = f"transitions_recollect_{args.task}_i{args.intermediate}" + "".join(
+                f"_{task}@{scene.replace('/', '-')}" for task, scene in sorted(scenes.items()))
             pipeline.collect_transition_data(phase, index, intermediate=args.intermediate)
         elif not pipeline.run.transitions(args.task).is_file():
             pipeline.collect_transition_data(f"transitions_cli_{args.task}", index)
@@ -208,10 +245,15 @@ def run_feasibility(args) -> int:
         default = pipeline.run.feasibility(args.task)
         out = Path(args.out) if args.out else (default if temporal and args.history == 10 else
                                                 default.with_name(f"{args.task}_h{args.history if temporal else 0}.pt"))
-        outcome = pipeline.fit_feasibility(index, args.history, temporal, out, **architecture)
+        try:
+            outcome = pipeline.fit_feasibility(index, args.history, temporal, out, **architecture)
+        except ValueError as error:  # The data cannot define F (e.g. no positive threshold h): nothing is written.
+            raise CliError(f"F for {args.task} cannot be fitted from {pipeline.run.transitions(args.task)} (kept): "
+                           f"{error}", code=1) from error
         # On the record, so what a shipped F was fitted on is known (seqdex ship copies pipeline.json's summary).
         pipeline.run.finish(f"feasibility_cli_{args.task}_h{outcome['history']}",
-                            dict(outcome, out=str(out), recollected=args.recollect, intermediate=args.intermediate))
+                            dict(outcome, out=str(out), recollected=args.recollect, intermediate=args.intermediate,
+                                 scenes=scenes))
     except RuntimeError as error:
         raise CliError(str(error), code=1) from error
     print(f"seqdex feasibility: F for {args.task} (H = {outcome['history']}, {'attention' if temporal else 'MLP'}), "

@@ -10,7 +10,9 @@ holds at its last step. With ``--initial-states B`` (a terminal buffer of the pr
 collect``) episode ``i`` starts instead from B's successful hand-off number ``(seed + i) mod N`` (N of them), as
 forward initialization starts the sub-task: ``--seed 0 --episodes N`` plays each hand-off once. ``--scene``
 runs the sub-task on another station scenario with those hand-offs (block Orient from Search's hand-offs in the
-whole pile, where the chain runs it, instead of alone in the box).
+whole pile, where the chain runs it, instead of alone in the box). ``--objects`` draws the reset's object from
+the named ones only (the unseen block types 6-8, say); every episode records its object, and the summary counts
+episodes and successes per object kind.
 The env is the task variant the policy was trained on (``--preset``, by default the one
 recorded in the run's ``config.json`` beside the checkpoint). Prints the success rate and the mean return;
 ``--out`` also writes them with every episode's seed, return, length and outcome as JSON (the path is checked to
@@ -18,6 +20,7 @@ be writable before any rollout).
 ``--test``: episodes cut to a few steps, 2 episodes unless ``--episodes`` is given.
 """
 
+import dataclasses
 import json
 import math
 import os
@@ -64,6 +67,9 @@ def add_parser(commands) -> None:
                         help="run the sub-task on another station scenario than its own, e.g. building_blocks/search "
                              "(Orient in the whole pile, as the chain runs it); needs --initial-states from a "
                              "sub-task of that scene (the task's own resets would not find their objects there)")
+    parser.add_argument("--objects", nargs="+", metavar="NAME",
+                        help="draw the reset's object from these only: block types 1 .. 8 (6-8 unseen in training), "
+                             "or tools hammer, spatula, spoon (default: the task's, the trained ones)")
     parser.add_argument("--out", help="also write the results to this JSON file")
     parser.add_argument("--test", action="store_true", help="a tiny budget for smoke tests and CI")
 
@@ -93,24 +99,60 @@ def run_episode(env, policy, seed: int, initial_state=None) -> dict:
     return, length and outcome."""
     options = None if initial_state is None else {"initial_state": initial_state}
     observation, info = env.reset(seed=seed, options=options)
+    target = getattr(env.unwrapped, "target_object", None)
     episode_return, length = 0.0, 0
     while True:
         observation, reward, terminated, truncated, info = env.step(policy(observation))
         episode_return += float(reward)
         length += 1
         if terminated or truncated:
-            return {"seed": seed, "return": episode_return, "length": length,
+            return {"seed": seed, "object": target, "return": episode_return, "length": length,
                     "success": bool(info.get("success", False)), "terminated": bool(terminated),
                     "simulator_error": bool(info.get("simulator_error", False))}
 
 
 def summarize(records: list[dict]) -> dict:
-    """Success rate, mean / std of the return and mean length of the episode ``records``."""
+    """Success rate, mean / std of the return and mean length of the episode ``records``, and episodes and
+    successes per object kind (:func:`object_kind` of each episode's target)."""
     returns = [record["return"] for record in records]
     mean = sum(returns) / len(returns)
+    per_object: dict[str, dict] = {}
+    for record in records:
+        counts = per_object.setdefault(object_kind(record.get("object")), {"episodes": 0, "successes": 0})
+        counts["episodes"] += 1
+        counts["successes"] += int(record["success"])
     return {"success_rate": sum(record["success"] for record in records) / len(records), "mean_return": mean,
             "std_return": math.sqrt(sum((value - mean) ** 2 for value in returns) / len(returns)),
-            "mean_length": sum(record["length"] for record in records) / len(records)}
+            "mean_length": sum(record["length"] for record in records) / len(records),
+            "per_object": dict(sorted(per_object.items()))}
+
+
+def object_kind(name: str | None) -> str:
+    """The kind of a target object: ``"block 6"`` for ``block_6_3`` (its type), a tool's own name, ``"-"`` for
+    none (a task without a target object)."""
+    if not name:
+        return "-"
+    parts = name.split("_")
+    return f"block {parts[1]}" if parts[0] == "block" and len(parts) >= 2 else name
+
+
+def _with_objects(config, args, starts):
+    """``config`` drawing its reset's object from ``--objects`` (as-is without it); :class:`CliError` for
+    unknown names, a task without objects to choose, or hand-offs (which fix the object)."""
+    if args.objects is None:
+        return config
+    from seqdex_drake.evaluation.experiments import object_keys
+
+    if starts is not None:
+        raise CliError("--objects draws the reset's object; with --initial-states each hand-off fixes it")
+    family = config.scenario.split("/")[0]
+    if family not in ("building_blocks", "tool_positioning"):
+        raise CliError(f"--objects: the {args.task} task has one object, nothing to choose")
+    try:
+        keys = object_keys(family, args.objects)
+    except ValueError as error:
+        raise CliError(f"--objects: {error}") from error
+    return dataclasses.replace(config, object_types=[int(key) for key in keys])
 
 
 def _load(args, checkpoint: Path):
@@ -166,8 +208,6 @@ def _scene(args) -> str | None:
 
 
 def _on_scene(config, scene: str | None):
-    import dataclasses
-
     return config if scene is None else dataclasses.replace(config, scenario=scene)
 
 
@@ -193,14 +233,15 @@ def run(args) -> int:
         if args.checkpoint or args.run_dir:
             raise CliError("--zero-action rolls out no policy; drop --checkpoint / --run-dir")
         preset = args.preset or "budget"
-        config = _on_scene(task_config(args.task, args.test, preset), scene)
+        config = _with_objects(_on_scene(task_config(args.task, args.test, preset), scene), args, starts)
         env = make_env(args.task, config)
         zeros = np.zeros(env.action_space.shape, dtype=np.float32)
         policy, checkpoint = (lambda observation: zeros), "the zero action" + (
             f" (the {config.residual} base alone)" if config.residual else "")
     else:
         preset = args.preset or run_preset(checkpoint)
-        config = _on_scene(task_config(args.task, args.test, preset, residual=run_residual(checkpoint)), scene)
+        config = _with_objects(_on_scene(task_config(args.task, args.test, preset,
+                                                     residual=run_residual(checkpoint)), scene), args, starts)
         policy = _load(args, checkpoint)
         env = make_env(args.task, config)
         _check(args, checkpoint, policy, env)
@@ -216,6 +257,7 @@ def run(args) -> int:
     if out is not None:
         result = {"task": args.task, "checkpoint": os.fspath(checkpoint), "episodes": episodes, "seed": args.seed,
                   "preset": preset, "initial_states": args.initial_states, "scene": config.scenario,
+                  "object_types": list(config.object_types),
                   "test": bool(args.test),
                   "episode_length": config.episode_length,
                   "deterministic": True, **summary, "per_episode": records}
