@@ -7,6 +7,7 @@ import json
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,6 +18,8 @@ from seqdex_drake.cli import TEST_EPISODE_LENGTH, observation_spec, task_config
 from seqdex_drake.cli.main import main
 from seqdex_drake.cli.train import TEST_HORIZON
 from seqdex_drake.tasks.registry import task_names
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _steps(path) -> int:
@@ -243,12 +246,29 @@ def test_rollout_of_chosen_objects_records_each_episodes_object(tmp_path, capsys
     assert {f"block {kind}" for kind in kinds} == set(per_object)
     assert sum(counts["successes"] for counts in per_object.values()) == sum(
         record["success"] for record in result["per_episode"])
+    # scripts/rollout_table.py tabulates it by type; a file without recorded objects is refused.
+    table = subprocess.run([sys.executable, str(ROOT / "scripts" / "rollout_table.py"), str(out)],
+                           capture_output=True, text=True, check=True).stdout
+    for kind, counts in per_object.items():
+        assert f"| grasp | {kind} | {counts['successes']}/{counts['episodes']} |" in table
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps(dict(result, per_episode=[{"seed": 0, "success": True}])))
+    refused = subprocess.run([sys.executable, str(ROOT / "scripts" / "rollout_table.py"), str(old)],
+                             capture_output=True, text=True)
+    assert refused.returncode == 2 and "do not record their object" in refused.stderr
     capsys.readouterr()
     for bad, message in ((["--task", "grasp", "--objects", "9"], "unknown block type '9'"),
                          (["--task", "tool_grasp", "--objects", "3"], "unknown tool '3'"),
                          (["--task", "reach", "--objects", "1"], "nothing to choose")):
         assert main(["rollout", "--zero-action", "--test", *bad]) == 2
         assert message in capsys.readouterr().err
+    # Insert's reset cannot pick up the 2x2 type 8: a clear error before anything is written.
+    wide = tmp_path / "wide.json"
+    assert main(["rollout", "--task", "insert", "--zero-action", "--test", "--objects", "8", "--out",
+                 str(wide)]) == 2
+    err = capsys.readouterr().err
+    assert "block type 8 is 6 cm wide" in err and "Grasp's hand-offs" in err and "Traceback" not in err
+    assert not wide.exists()
     buffer = str(tmp_path / "tool.npz")
     _tool_grasp_buffer(buffer)
     assert main(["rollout", "--task", "tool_reorient", "--zero-action", "--test", "--initial-states", buffer,

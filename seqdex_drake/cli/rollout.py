@@ -216,6 +216,7 @@ def run(args) -> int:
     from tqdm import tqdm
 
     from seqdex_drake.atomic import atomic_write
+    from seqdex_drake.tasks.base import ResetError
     from seqdex_drake.tasks.registry import make_env
 
     episodes = args.episodes if args.episodes is not None else (TEST_EPISODES if args.test else DEFAULT_EPISODES)
@@ -245,10 +246,13 @@ def run(args) -> int:
         policy = _load(args, checkpoint)
         env = make_env(args.task, config)
         _check(args, checkpoint, policy, env)
-    records = [run_episode(env, policy, args.seed + episode,
-                           None if starts is None else starts[(args.seed + episode) % len(starts)])
-               for episode in tqdm(range(episodes), desc=f"rollout {args.task}", unit="episode",
-                                   disable=not sys.stderr.isatty())]
+    try:
+        records = [run_episode(env, policy, args.seed + episode,
+                               None if starts is None else starts[(args.seed + episode) % len(starts)])
+                   for episode in tqdm(range(episodes), desc=f"rollout {args.task}", unit="episode",
+                                       disable=not sys.stderr.isatty())]
+    except ResetError as error:  # Nothing is written: --out only after every episode.
+        raise CliError(f"{args.task}: {error}") from error
     summary = summarize(records)
     print(f"seqdex rollout: {args.task}: success rate {summary['success_rate']:.3f} "
           f"({sum(record['success'] for record in records)}/{episodes}), mean return {summary['mean_return']:.3f} "

@@ -14,6 +14,11 @@ from seqdex_drake.tasks.phases import ScriptedPhases
 from seqdex_drake.tasks.rewards import RewardWeights
 
 
+class ResetError(ValueError):
+    """A reset the task cannot make with its config (e.g. an object its scripted start cannot hold); the message
+    names the object and what to do instead."""
+
+
 @dataclasses.dataclass
 class TaskConfig:
     """Configuration of one sub-task MDP (paper appendix and FACTS.md)."""

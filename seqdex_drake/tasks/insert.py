@@ -23,7 +23,7 @@ from pydrake.math import RigidTransform, RollPitchYaw
 
 from seqdex_drake.modeling.blocks import BLOCK_SPECS, STUD_PITCH
 from seqdex_drake.observation_layout import OBJECT_QUATERNION, floats, pose_vector, quat_product
-from seqdex_drake.tasks.base import Task, TaskConfig
+from seqdex_drake.tasks.base import ResetError, Task, TaskConfig
 from seqdex_drake.tasks.blocks_common import block_name
 from seqdex_drake.tasks.carry import carry_to_goal, restore_held_orientation
 from seqdex_drake.tasks.handoff import scripted_block_pickup
@@ -75,6 +75,10 @@ def block_goal_errors(env) -> tuple[float, float]:
     return position, min(rotation, flipped)
 
 
+#: Widest block [m] the reset's scripted tripod pickup holds (every type's 3 cm width but the 2x2 type 8's 6 cm).
+PICKUP_MAX_WIDTH = 0.03
+
+
 class InsertTask(Task):
     """Seat the held block on its goal."""
 
@@ -82,6 +86,12 @@ class InsertTask(Task):
 
     def reset(self, env, rng) -> None:
         block_type = int(rng.choice(env.config.object_types))
+        width = BLOCK_SPECS[block_type].footprint[1]
+        if width > PICKUP_MAX_WIDTH:
+            raise ResetError(f"Insert's reset picks the block up with a scripted tripod, which holds blocks up to "
+                             f"{PICKUP_MAX_WIDTH * 100:.0f} cm wide; block type {block_type} is {width * 100:.0f} cm "
+                             f"wide. Start its episodes from Grasp's hand-offs instead (seqdex rollout "
+                             f"--initial-states, seqdex collect --task grasp)")
         name = block_name(block_type)
         env.objects.park(env.context)
         self.place_goal(env, rng, name)
