@@ -83,6 +83,20 @@ def test_a_block_held_at_grasps_end_stays_in_hand_in_insert(envs):
     assert (insert.R_WP_hold.inverse() @ R_held).ToAngleAxis().angle() < 0.01
 
 
+def test_a_block_the_hand_does_not_hold_is_not_carried_to_its_goal(envs):
+    """Early in Grasp the open hand hovers over the block, near enough to count as in hand by distance alone;
+    Insert from that state must leave the block where it lies, not set it over its goal with the palm."""
+    grasp, insert = envs["grasp"], envs["insert"]
+    grasp.reset(seed=4)
+    grasp.step(np.zeros(19))
+    state = grasp.get_state()
+    assert grasp.objects.robot_bodies_touching(grasp.plant_context, grasp.target_object) == 0
+    insert.reset(options={"initial_state": state})
+    np.testing.assert_allclose(insert.object_position(), grasp.object_position(), atol=1e-9)  # Not moved.
+    assert np.linalg.norm(insert.object_position()[:2] - insert.goal[:2]) > 0.05
+    assert insert.R_WP_hold is insert.R_WP_home  # No carry turn either.
+
+
 def test_a_state_without_the_carried_fields_is_refused(envs):
     search, orient = envs["search"], envs["orient"]
     search.reset(seed=1)

@@ -330,6 +330,21 @@ class SceneObjects:
                 touched[b] = True
         return np.array(touched)
 
+    def robot_bodies_touching(self, plant_context: Context, name: str) -> int:
+        """How many distinct robot bodies touch object ``name`` (the plant's sampled contact results): a pinch or
+        a grasp needs at least two, on opposite sides."""
+        body, robot = int(self.bodies[self.index(name)].index()), self._robot_bodies
+        results = self.plant.get_contact_results_output_port().Eval(plant_context)
+        touching = set()
+        for k in range(results.num_point_pair_contacts()):
+            info = results.point_pair_contact_info(k)
+            a, b = int(info.bodyA_index()), int(info.bodyB_index())
+            if a == body and b in robot:
+                touching.add(b)
+            elif b == body and a in robot:
+                touching.add(a)
+        return len(touching)
+
     def touches_robot(self, plant_context: Context, name: str) -> bool:
         """Whether object ``name`` is in contact with the robot (the plant's sampled contact results: its last
         step's, as :meth:`update` reads them)."""

@@ -20,6 +20,8 @@ MAX_CARRY_TURN = 1.75
 #: A carried object's origin is at most this far (m) from the approach's controlled point (the hand centre); farther,
 #: it is not in hand and the approach aims at the plain goal.
 CARRY_REACH = 0.2
+#: An object counts as in hand for :func:`carry_to_goal` only while at least this many robot bodies touch it.
+MIN_HOLDING_BODIES = 2
 #: A hand-off from Grasp starts Insert with the block this far (m) above its goal (:func:`carry_to_goal`).
 CARRY_HEIGHT = 0.03
 #: A restored state whose arm target turns the palm more than this (rad) from home continues a carried episode: its
@@ -44,10 +46,16 @@ def carry_to_goal(env, height: float = CARRY_HEIGHT) -> bool:
     Grasp's lift leaves the block about 1.1 m up anywhere over the box and turned 10-15 deg in the jaws: from there
     Insert's 125 steps at the wrist's 0.3 m/s reached the goal in none of 60 hand-offs. Returns False, changing
     nothing, when the block is not in hand (farther than ``CARRY_REACH`` from the hand centre), the turn would be
-    over ``MAX_CARRY_TURN`` or the pose is out of the arm's reach."""
+    over ``MAX_CARRY_TURN`` or the pose is out of the arm's reach. In hand also means touched by at least two of
+    the hand's bodies: a block under the open hand, early in Grasp, is near the hand centre but not held, and
+    moving it with the palm would set it over its goal without a grasp (6 of the 60 mid-Grasp hand-overs of an F^insert
+    collection "succeeded" so, from as early as Grasp's first step)."""
     X_WPalm = env.plant.EvalBodyPoseInWorld(env.plant_context, env.plant.GetBodyByName(PALM_BODY, env.hand))
     X_WO = env.object_pose()
     if np.linalg.norm(X_WPalm @ p_PalmHc_Palm - X_WO.translation()) > CARRY_REACH:
+        return False
+    env.refresh_sampled_outputs()  # The restored state's contacts, not the last step's.
+    if env.objects.robot_bodies_touching(env.plant_context, env.target_object) < MIN_HOLDING_BODIES:
         return False
     X_WG = RigidTransform(Quaternion(floats(env.goal[3:]) / np.linalg.norm(env.goal[3:])), floats(env.goal[:3]))
     R_WG = nearest_equivalent(X_WG.rotation(), X_WO.rotation(), BLOCK_GOAL_TURNS)
