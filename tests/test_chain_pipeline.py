@@ -156,6 +156,13 @@ def test_bad_input(runs, tmp_path, capsys):
     assert "--envs-per-worker must be >= 1" in capsys.readouterr().err
     assert main(["finetune", "--run-dir", str(tmp_path / "missing")]) == 2
     assert "holds no pipeline run" in capsys.readouterr().err
+    present = str(runs / "seqdex" / "stages" / "reach" / "last.pt")
+    for init, message in ((["reach"], "expected TASK=CHECKPOINT"),
+                          ([f"reach={present}", f"reach={present}"], "names reach twice"),
+                          ([f"reach={tmp_path / 'none.pt'}"], "does not exist")):
+        flags = [flag for value in init for flag in ("--init", value)]
+        assert main(["pipeline", "--chain", "handover", "--test", *flags, "--run-dir", str(tmp_path / "bad")]) == 2
+        assert message in capsys.readouterr().err
 
 
 def test_budget_formula():

@@ -156,18 +156,26 @@ def run_pipeline(args) -> int:
     return 0
 
 
+def _task_pairs(flag: str, values: list[str], form: str, example: str) -> dict[str, str]:
+    """Repeated ``FLAG TASK=VALUE`` flags (``form`` names them, e.g. TASK=CHECKPOINT) as a dict; :class:`CliError`
+    for a malformed one or a task named twice."""
+    pairs = {}
+    for value in values:
+        task, sep, item = value.partition("=")
+        if not sep or not task or not item:
+            raise CliError(f"{flag} {value!r}: expected {form}, e.g. {flag} {example}")
+        if task in pairs:
+            raise CliError(f"{flag} names {task} twice")
+        pairs[task] = item
+    return pairs
+
+
 def _init_checkpoints(values: list[str]) -> dict[str, str]:
     """``--init TASK=CHECKPOINT`` flags as a dict; :class:`CliError` for a malformed one or a missing file."""
-    init = {}
-    for value in values:
-        task, sep, path = value.partition("=")
-        if not sep or not task or not path:
-            raise CliError(f"--init {value!r}: expected TASK=CHECKPOINT, e.g. --init tool_grasp=runs/x/last.pt")
-        if task in init:
-            raise CliError(f"--init names {task} twice")
+    init = _task_pairs("--init", values, "TASK=CHECKPOINT", "tool_grasp=runs/x/last.pt")
+    for task, path in init.items():
         if not Path(path).is_file():
             raise CliError(f"--init {task}: {path} does not exist")
-        init[task] = path
     return init
 
 
@@ -190,20 +198,14 @@ def _scenes(values: list[str], stages: list[str], task: str, recollect: bool) ->
 
     if values and not recollect:
         raise CliError("--scene needs --recollect: it changes where the transitions are collected")
-    scenes = {}
-    for value in values:
-        stage, sep, scene = value.partition("=")
-        if not sep or not stage or not scene:
-            raise CliError(f"--scene {value!r}: expected TASK=SCENARIO, e.g. --scene orient=building_blocks/search")
-        if stage in scenes:
-            raise CliError(f"--scene names {stage} twice")
+    scenes = _task_pairs("--scene", values, "TASK=SCENARIO", "orient=building_blocks/search")
+    for stage, scene in scenes.items():
         if stage not in stages:
             raise CliError(f"--scene {stage}: not a stage the collection for {task} runs ({', '.join(stages)})")
         try:
             LoadScenario(scene)
         except (ScenarioError, OSError, ValueError, KeyError) as error:
             raise CliError(f"--scene {stage}: scenario {scene!r} does not load: {error}") from error
-        scenes[stage] = scene
     return scenes
 
 
