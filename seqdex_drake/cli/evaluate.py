@@ -53,12 +53,12 @@ def run(args) -> int:
         EvalConfig,
         Evaluation,
         history_available,
-        object_keys,
         progress_bar,
         total_episodes,
     )
     from seqdex_drake.evaluation.parallel import EvaluationWorkerError
     from seqdex_drake.evaluation.runner import ChainRunError
+    from seqdex_drake.modeling.catalog import object_keys
 
     run_dir = Path(args.run_dir)
     if not run_dir.is_dir():

@@ -141,7 +141,7 @@ def _with_objects(config, args, starts):
     unknown names, a task without objects to choose, or hand-offs (which fix the object)."""
     if args.objects is None:
         return config
-    from seqdex_drake.evaluation.experiments import object_keys
+    from seqdex_drake.modeling.catalog import object_keys
 
     if starts is not None:
         raise CliError("--objects draws the reset's object; with --initial-states each hand-off fixes it")

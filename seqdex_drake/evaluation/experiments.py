@@ -27,8 +27,7 @@ from seqdex_drake.evaluation.episodes import (  # noqa: F401
 from seqdex_drake.evaluation.plots import write_pose_scatter
 from seqdex_drake.evaluation.runner import ChainRunner
 from seqdex_drake.evaluation.tables import seed_rates, write_table
-from seqdex_drake.modeling.blocks import BLOCK_SPECS
-from seqdex_drake.modeling.tools import TOOL_SPECS
+from seqdex_drake.modeling.catalog import objects_of
 
 SWITCH_SETTINGS = (0, 1, 2, 3)
 HISTORY_SETTINGS = (0, 5, 10, 15)
@@ -57,27 +56,6 @@ class EvalConfig:
     """The main table's row name (default: "ours (max N switches)")."""
     workers: int = 1
     """Processes running the episodes (seeds round-robin over at most ``len(seeds)`` of them)."""
-
-
-def objects_of(family: str) -> list[tuple]:
-    """(key, label, trained) per object of the family."""
-    if family == "building_blocks":
-        return [(t, f"Block {t}", BLOCK_SPECS[t].split == "trained") for t in sorted(BLOCK_SPECS)]
-    return [(k, name, k == 0) for k, name in enumerate(TOOL_SPECS)]
-
-
-def object_keys(family: str, names) -> tuple:
-    """The object keys of ``names``: tool names (hammer, spatula, spoon) or block types ("1" .. "8"), in
-    :func:`objects_of` order, duplicates dropped. Raises ValueError naming the valid ones."""
-    objects = objects_of(family)
-    valid = {label if family == "tool_positioning" else str(key): key for key, label, _ in objects}
-    unknown = [name for name in names if str(name) not in valid]
-    if unknown:
-        kind = "tool" if family == "tool_positioning" else "block type"
-        raise ValueError(f"unknown {kind}{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))}; "
-                         f"valid {family} objects: {', '.join(valid)}")
-    keep = {valid[str(name)] for name in names}
-    return tuple(key for key, _, _ in objects if key in keep)
 
 
 def selected_objects(config: EvalConfig, subset: tuple | None = None) -> list[tuple]:
