@@ -348,11 +348,4 @@ class SceneObjects:
     def touches_robot(self, plant_context: Context, name: str) -> bool:
         """Whether object ``name`` is in contact with the robot (the plant's sampled contact results: its last
         step's, as :meth:`update` reads them)."""
-        body, robot = int(self.bodies[self.index(name)].index()), self._robot_bodies
-        results = self.plant.get_contact_results_output_port().Eval(plant_context)
-        for k in range(results.num_point_pair_contacts()):
-            info = results.point_pair_contact_info(k)
-            a, b = int(info.bodyA_index()), int(info.bodyB_index())
-            if (a == body and b in robot) or (b == body and a in robot):
-                return True
-        return False
+        return self.robot_bodies_touching(plant_context, name) > 0
