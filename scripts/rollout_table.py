@@ -1,11 +1,11 @@
 """A markdown table of ``seqdex rollout --out`` files: one row per (sub-task, object kind), the successes per file
 (each file one seed), pooled, and the mean ± std of the per-seed success rates.
 
-    python scripts/rollout_table.py results/building_blocks/unseen/*.json
+    python scripts/rollout_table.py results/building_blocks/per_type/*.json
 
-Each file's episodes are counted by the object they started with (``per_episode[i]["object"]``, recorded by
-``seqdex rollout``; ``block_6_3`` counts as ``block 6``), so a file of mixed types fills several rows. Files
-written before rollouts recorded objects are refused, naming them.
+Each file's episodes are counted by the object they started with (its ``per_object`` counts, which ``seqdex
+rollout`` writes: ``block_6_3`` counts as ``block 6``), so a file of mixed types fills several rows. Files written
+before rollouts recorded objects are refused, naming them.
 """
 
 import argparse
@@ -16,11 +16,6 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from seqdex_drake.cli.rollout import object_kind  # noqa: E402
-
 
 def load(paths: list[Path]) -> dict:
     """{(task, kind): [(seed, episodes, successes), ...]} from the rollout files; ValueError naming a bad file."""
@@ -28,19 +23,14 @@ def load(paths: list[Path]) -> dict:
     for path in paths:
         try:
             result = json.loads(path.read_text())
-            task, episodes = result["task"], result["per_episode"]
+            task, seed = result["task"], int(result["seed"])
         except (OSError, ValueError, KeyError, TypeError) as error:
             raise ValueError(f"{path}: not a seqdex rollout --out file ({error})") from error
-        if any("object" not in episode for episode in episodes):
+        if "per_object" not in result:
             raise ValueError(f"{path}: its episodes do not record their object (written before seqdex rollout "
                              f"did); roll it out again")
-        counts: dict[str, list[int]] = defaultdict(lambda: [0, 0])
-        for episode in episodes:
-            count = counts[object_kind(episode["object"])]
-            count[0] += 1
-            count[1] += int(episode["success"])
-        for kind, (total, successes) in counts.items():
-            rows[(task, kind)].append((int(result["seed"]), total, successes))
+        for kind, counts in result["per_object"].items():
+            rows[(task, kind)].append((seed, counts["episodes"], counts["successes"]))
     return rows
 
 
