@@ -121,7 +121,7 @@ def _block(p, roll=0.0):
     return np.array([np.cos(roll / 2), np.sin(roll / 2), 0.0, 0.0, *p])
 
 
-def test_accessibility_order_prefers_reachable_uncovered_upright_then_side_then_high():
+def test_accessibility_order_prefers_reachable_upright_uncovered_then_side_then_high():
     from seqdex_drake.tasks.blocks_common import accessibility_order, reachable_region
 
     low, high = reachable_region()
@@ -132,10 +132,62 @@ def test_accessibility_order_prefers_reachable_uncovered_upright_then_side_then_
         _block([*(mid + [0.0, 0.06]), 0.66], np.pi),            # 2: upside down, reachable, highest
         _block([low[0] - 0.05, mid[1], 0.70]),                  # 3: upright, highest, but where the hand cannot fit
         _block([*(mid + [-0.06, 0.0]), 0.61]),                  # 4: upright, reachable, covered by 5
-        _block([*(mid + [-0.05, 0.01]), 0.64], np.pi / 2),      # 5: on its side over 4
+        _block([*(mid + [-0.05, 0.01]), 0.67], np.pi / 2),      # 5: on its side over 4
     ])
-    assert accessibility_order(q, [0, 1, 2, 3, 4]) == [0, 1, 2, 4, 3]
+    assert accessibility_order(q, [0, 1, 2, 3, 4]) == [0, 4, 1, 2, 3]  # Upright, even covered, before the others.
+    assert accessibility_order(q, [1, 5]) == [5, 1]  # The same pose: the higher first.
     assert accessibility_order(q, [2, 1]) == [1, 2]
     q[1, 6] = 0.70  # Same pose class: the higher one first.
     q[0] = _block([*(mid + [0.12, 0.0]), 0.64], np.pi / 2)
     assert accessibility_order(q, [0, 1]) == [1, 0]
+
+
+def _yawed(p, yaw, roll=0.0):
+    """A pile row turned by ``yaw`` about world z after ``roll`` about x, at ``p``."""
+    from pydrake.math import RollPitchYaw
+
+    return np.r_[RollPitchYaw(roll, 0.0, yaw).ToQuaternion().wxyz(), p]
+
+
+def test_roll_blocked_needs_a_neighbour_as_high_on_every_side_the_roll_can_take():
+    from seqdex_drake.tasks.blocks_common import roll_blocked
+
+    mid = np.array([0.25, 0.19, 0.62])
+    side = _block(mid, np.pi / 2)  # Body +y up: its top face moves toward +y as it stands up.
+    ahead, behind, low = _block(mid + [0.02, 0.06, 0.0]), _block(mid - [0.0, 0.06, 0.0]), _block(mid + [0, 0.06, -0.03])
+    far = _block(mid + [0.10, 0.06, 0.0])  # Beyond the block's end.
+    assert roll_blocked(np.array([side, ahead]), 0)
+    assert not roll_blocked(np.array([side, behind]), 0)
+    assert not roll_blocked(np.array([side, low]), 0)
+    assert not roll_blocked(np.array([side, far]), 0)
+    assert roll_blocked(np.array([_block(mid, -np.pi / 2), behind]), 0)  # The other side up: the roll goes to -y.
+    upside_down = _block(mid, np.pi)  # Either way: blocked only when both are.
+    assert not roll_blocked(np.array([upside_down, ahead]), 0)
+    assert roll_blocked(np.array([upside_down, ahead, behind]), 0)
+    assert not roll_blocked(np.array([_block(mid), ahead, behind]), 0)  # Upright: nothing to roll.
+
+
+def test_accessibility_order_prefers_room_to_roll_then_a_long_axis_across_the_jaws():
+    from seqdex_drake.tasks.blocks_common import accessibility_order, along_jaws, reachable_region
+
+    assert along_jaws(_yawed([0.25, 0.19, 0.62], 0.3)) and not along_jaws(_yawed([0.25, 0.19, 0.62], np.pi / 2 - 0.3))
+    low, high = reachable_region()
+    mid = np.r_[(low + high) / 2, 0.62]
+    q = np.array([
+        _yawed(mid, 0.0, np.pi / 2),                            # 0: on its side along the jaws, roll to +y free
+        _yawed(mid + [0.0, -0.09, 0.0], np.pi / 2, np.pi / 2),  # 1: on its side across the jaws, roll to -x free
+        _yawed(mid + [0.10, 0.05, 0.01], 0.0, np.pi / 2),       # 2: highest, on its side, its roll (+y) taken by 3
+        _block(mid + [0.10, 0.11, 0.01]),                       # 3
+    ])
+    assert accessibility_order(q, [0, 1, 2]) == [1, 0, 2]
+
+
+def test_the_chain_is_evaluated_on_held_out_piles():
+    """The whole-chain scene restores piles that Search did not train on: another cache, every pile in the box."""
+    search, chain = LoadScenario("building_blocks/search"), LoadScenario("building_blocks/chain")
+    names = MakeStationHarness(chain).objects.names
+    trained = LoadPiles(ResolvePackageUrl(search.pile_file), names)
+    held_out = LoadPiles(ResolvePackageUrl(chain.pile_file), names)
+    assert chain.pile_file != search.pile_file and len(held_out) >= 24
+    assert all(InsideBox(p).all() for p in held_out)
+    assert min(np.abs(p - q).max() for p in held_out for q in trained) > 0.01  # No training pile among them.

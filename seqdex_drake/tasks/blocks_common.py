@@ -61,16 +61,60 @@ def sample_box_xy(rng: np.random.Generator) -> np.ndarray:
 
 
 #: A block whose centre has another block's centre within this horizontal distance (m) and more than
-#: ``COVER_RISE`` (m) higher is covered.
+#: ``COVER_RISE`` (m) higher is covered (centres, not origins: :func:`centre_heights`).
 COVER_RADIUS, COVER_RISE = 0.05, 0.01
+
+
+#: Orient's roll needs room on the side its top moves to: a neighbour whose centre lies within ``ROLL_ROOM`` (m)
+#: of the block's centre along that direction, beside its length (within ``ROLL_BESIDE`` of its centre along the
+#: long axis), and no more than ``ROLL_BELOW`` lower, stops the stroking fingertip or the roll (traced in the pile).
+ROLL_ROOM, ROLL_BESIDE, ROLL_BELOW = 0.10, 0.07, 0.01
+#: The jaws of Grasp's pinch close along world x; a block whose long axis lies within 45 deg of x is pinched by
+#: its ends and tilts in the lift (``results/building_blocks.md``), and Insert's goals lie along y.
+ALONG_JAWS_COS = np.cos(np.radians(45.0))
+
+
+def roll_blocked(q_blocks: np.ndarray, i: int) -> bool:
+    """Whether every way Orient's roll would stand block ``i`` of ``q_blocks`` up is taken by a neighbour
+    (``ROLL_ROOM``): a block on a long side stands up one way only (its top moving across its long axis, away from
+    its open bottom), an upside-down one either way; an upright block needs no roll (False)."""
+    from seqdex_drake.scene.block_orient_script import roll_angle  # The script's own notion of the roll.
+
+    R_WB = rotation_matrix(q_blocks[i, :4])
+    roll = roll_angle(R_WB)
+    across = np.cross(R_WB[:, 0], [0.0, 0.0, 1.0])
+    norm = float(np.linalg.norm(across))
+    if abs(roll) < np.radians(20.0) or norm < 1e-6:  # Upright, or its long axis vertical (no roll stands it up).
+        return False
+    across /= norm
+    long_xy = np.array([-across[1], across[0], 0.0])
+    ways = [across, -across] if abs(roll) > np.radians(170.0) else [-np.sign(roll) * across]
+    d = np.delete(q_blocks[:, 4:], i, axis=0) - q_blocks[i, 4:]
+    beside = (np.abs(d @ long_xy) < ROLL_BESIDE) & (d[:, 2] > -ROLL_BELOW)
+    return all(bool(np.any(beside & (d @ e > 0.0) & (d @ e < ROLL_ROOM))) for e in ways)
+
+
+def along_jaws(q_block: np.ndarray) -> bool:
+    """Whether the block's long axis (body x), projected on the table, lies within 45 deg of world x."""
+    x_W = rotation_matrix(q_block[:4])[:, 0]
+    return bool(abs(x_W[0]) > ALONG_JAWS_COS * max(float(np.hypot(x_W[0], x_W[1])), 1e-9))
+
+
+def centre_heights(q_blocks: np.ndarray) -> np.ndarray:
+    """The world z of each block's centre (its origin is the middle of its bottom face: an upright block's origin
+    lies 2.9 cm below its centre, a side-lying one's at its centre's height)."""
+    return np.array([row[6] + rotation_matrix(row[:4])[2, 2] * TOTAL_HEIGHT / 2 for row in q_blocks])
 
 
 def accessibility_order(q_blocks: np.ndarray, candidates: list[int]) -> list[int]:
     """``candidates`` (rows of ``q_blocks``, an (N, 7) [wxyz, xyz] pile) ordered easiest to fetch first: centre
-    in :func:`reachable_region` before outside it, uncovered (no block centre within ``COVER_RADIUS`` and
-    ``COVER_RISE`` above) before covered, then by resting pose: upright (tilt < 20 deg: Orient has nothing to do),
-    on a long side (70-110 deg: Orient's quarter roll), any other; then highest first."""
+    in :func:`reachable_region` before outside it; upright (tilt < 20 deg: Orient has nothing to do; in the pile
+    Orient stood 7 of 7 such picks and about 1 in 10 of the others) before any other; uncovered (no block centre
+    within ``COVER_RADIUS`` and ``COVER_RISE`` above its centre) before covered; then on a long side (70-110 deg:
+    Orient's quarter roll) before any other pose; room for Orient's roll (:func:`roll_blocked`); the long axis
+    across Grasp's jaws (:func:`along_jaws`); highest first."""
     low, high = reachable_region()
+    heights = centre_heights(q_blocks)
     keys = []
     for i in candidates:
         up_z = rotation_matrix(q_blocks[i, :4])[2, 2]  # The block's z axis, world z component.
@@ -78,9 +122,10 @@ def accessibility_order(q_blocks: np.ndarray, candidates: list[int]) -> list[int
         p = q_blocks[i, 4:]
         inside = bool(np.all(p[:2] >= low) and np.all(p[:2] <= high))
         near = np.linalg.norm(q_blocks[:, 4:6] - p[:2], axis=1) < COVER_RADIUS
-        covered = bool(np.any(near & (q_blocks[:, 6] > p[2] + COVER_RISE)))
-        pose = 0 if tilt < 20.0 else 1 if 70.0 <= tilt <= 110.0 else 2
-        keys.append((not inside, covered, pose, -p[2], i))
+        covered = bool(np.any(near & (heights > heights[i] + COVER_RISE)))
+        side = 70.0 <= tilt <= 110.0
+        keys.append((not inside, tilt >= 20.0, covered, not side, roll_blocked(q_blocks, i), along_jaws(q_blocks[i]),
+                     -heights[i], i))
     return [key[-1] for key in sorted(keys)]
 
 
