@@ -276,6 +276,23 @@ def test_rollout_of_chosen_objects_records_each_episodes_object(tmp_path, capsys
     assert "each hand-off fixes it" in capsys.readouterr().err
 
 
+def test_collect_of_chosen_objects_hands_over_only_those(tmp_path, capsys):
+    """``seqdex collect --objects 8`` rolls Grasp out on the unseen 2x2 only (Insert's own reset cannot pick it up,
+    so its episodes start from Grasp's hand-offs); unknown names are refused before any rollout."""
+    from seqdex_drake.chaining.terminal_buffer import TerminalBuffer
+
+    shipped = ROOT / "checkpoints" / "building_blocks" / "stages" / "grasp" / "best.pt"
+    out = tmp_path / "wide.npz"
+    assert main(["collect", "--task", "grasp", "--checkpoint", str(shipped), "--preset", "budget", "--test",
+                 "--episodes", "2", "--keep-failures", "--objects", "8", "--out", str(out)]) == 0
+    buffer = TerminalBuffer.load(out, expected_task="insert")
+    assert len(buffer) == 2 and all(buffer.state(i)["target_object"] == "block_8" for i in range(2))
+    capsys.readouterr()
+    assert main(["collect", "--task", "grasp", "--checkpoint", str(shipped), "--preset", "budget", "--test",
+                 "--objects", "9", "--out", str(tmp_path / "none.npz")]) == 2
+    assert "unknown block type '9'" in capsys.readouterr().err and not (tmp_path / "none.npz").exists()
+
+
 def test_rollout_on_another_scene_from_a_hand_off_buffer(tmp_path, capsys):
     """``--scene`` runs a sub-task on another station scenario (block Orient in the whole pile): the hand-offs
     restore that scene's state; without hand-offs, or with an unknown scenario, it is refused before any rollout."""

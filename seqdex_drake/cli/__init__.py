@@ -122,3 +122,27 @@ def _plain(value):
     if hasattr(value, "tolist"):
         return value.tolist()
     raise TypeError(f"cannot write {type(value).__name__} to JSON")
+
+
+#: ``--objects``' help (``seqdex rollout``, ``seqdex collect``).
+OBJECTS_HELP = ("draw the reset's object from these only: block types 1 .. 8 (6-8 unseen in training), or tools "
+                "hammer, spatula, spoon (default: the task's, the trained ones)")
+
+
+def with_objects(config, task: str, objects: list[str] | None, starts=None):
+    """``config`` drawing its reset's object from ``objects`` (``--objects``; as-is without it); :class:`CliError`
+    for unknown names, a task without objects to choose, or hand-offs ``starts`` (which fix the object)."""
+    if objects is None:
+        return config
+    from seqdex_drake.modeling.catalog import object_keys
+
+    if starts is not None:
+        raise CliError("--objects draws the reset's object; with --initial-states each hand-off fixes it")
+    family = config.scenario.split("/")[0]
+    if family not in ("building_blocks", "tool_positioning"):
+        raise CliError(f"--objects: the {task} task has one object, nothing to choose")
+    try:
+        keys = object_keys(family, objects)
+    except ValueError as error:
+        raise CliError(f"--objects: {error}") from error
+    return dataclasses.replace(config, object_types=[int(key) for key in keys])

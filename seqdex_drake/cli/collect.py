@@ -16,7 +16,15 @@ from pathlib import Path
 
 import numpy as np
 
-from seqdex_drake.cli import NEXT_TASK, CliError, check_creatable, check_seed, observation_spec, task_config
+from seqdex_drake.cli import (
+    NEXT_TASK,
+    CliError,
+    check_creatable,
+    check_seed,
+    observation_spec,
+    task_config,
+    with_objects,
+)
 
 #: H, the observations stored per buffer entry (the feasibility function's input length).
 HISTORY = 10
@@ -96,7 +104,8 @@ def run(args) -> int:
 
     # The variant the policy was trained on.
     preset = args.preset or run_preset(checkpoint)
-    config = task_config(args.task, args.test, preset, residual=run_residual(checkpoint))
+    config = with_objects(task_config(args.task, args.test, preset, residual=run_residual(checkpoint)), args.task,
+                          args.objects)
     env = make_env(args.task, config)
     dim = env.observation_space.shape[0]
     if ppo.obs_dim != dim or ppo.action_dim != env.action_space.shape[0]:

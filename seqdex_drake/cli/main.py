@@ -20,7 +20,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from seqdex_drake.cli import CliError
+from seqdex_drake.cli import OBJECTS_HELP, CliError
 from seqdex_drake.cli.rollout import PRESETS
 
 
@@ -78,6 +78,7 @@ def build_parser() -> argparse.ArgumentParser:
     collect.add_argument("--episodes", type=int, help="episodes to roll out (default: 100; 2 with --test)")
     collect.add_argument("--out", help="the buffer file (default: <run-dir>/terminal_<task>_to_<next>.npz)")
     collect.add_argument("--keep-failures", action="store_true", help="also record unsuccessful episodes")
+    collect.add_argument("--objects", nargs="+", metavar="NAME", help=OBJECTS_HELP)
     collect.add_argument("--preset", choices=PRESETS,
                          help="the task variant the policy was trained on (default: the preset in the run's "
                               "config.json beside the checkpoint, else paper); e.g. budget for a shipped stage "

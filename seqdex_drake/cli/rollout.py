@@ -29,7 +29,15 @@ from pathlib import Path
 
 import numpy as np
 
-from seqdex_drake.cli import CliError, check_creatable, check_seed, observation_spec, task_config
+from seqdex_drake.cli import (
+    OBJECTS_HELP,
+    CliError,
+    check_creatable,
+    check_seed,
+    observation_spec,
+    task_config,
+    with_objects,
+)
 
 #: Episodes rolled out when ``--episodes`` is not given (with and without ``--test``).
 DEFAULT_EPISODES, TEST_EPISODES = 100, 2
@@ -67,9 +75,7 @@ def add_parser(commands) -> None:
                         help="run the sub-task on another station scenario than its own, e.g. building_blocks/search "
                              "(Orient in the whole pile, as the chain runs it); needs --initial-states from a "
                              "sub-task of that scene (the task's own resets would not find their objects there)")
-    parser.add_argument("--objects", nargs="+", metavar="NAME",
-                        help="draw the reset's object from these only: block types 1 .. 8 (6-8 unseen in training), "
-                             "or tools hammer, spatula, spoon (default: the task's, the trained ones)")
+    parser.add_argument("--objects", nargs="+", metavar="NAME", help=OBJECTS_HELP)
     parser.add_argument("--out", help="also write the results to this JSON file")
     parser.add_argument("--test", action="store_true", help="a tiny budget for smoke tests and CI")
 
@@ -134,25 +140,6 @@ def object_kind(name: str | None) -> str:
         return "-"
     parts = name.split("_")
     return f"block {parts[1]}" if parts[0] == "block" and len(parts) >= 2 else name
-
-
-def _with_objects(config, args, starts):
-    """``config`` drawing its reset's object from ``--objects`` (as-is without it); :class:`CliError` for
-    unknown names, a task without objects to choose, or hand-offs (which fix the object)."""
-    if args.objects is None:
-        return config
-    from seqdex_drake.modeling.catalog import object_keys
-
-    if starts is not None:
-        raise CliError("--objects draws the reset's object; with --initial-states each hand-off fixes it")
-    family = config.scenario.split("/")[0]
-    if family not in ("building_blocks", "tool_positioning"):
-        raise CliError(f"--objects: the {args.task} task has one object, nothing to choose")
-    try:
-        keys = object_keys(family, args.objects)
-    except ValueError as error:
-        raise CliError(f"--objects: {error}") from error
-    return dataclasses.replace(config, object_types=[int(key) for key in keys])
 
 
 def _load(args, checkpoint: Path):
@@ -234,15 +221,17 @@ def run(args) -> int:
         if args.checkpoint or args.run_dir:
             raise CliError("--zero-action rolls out no policy; drop --checkpoint / --run-dir")
         preset = args.preset or "budget"
-        config = _with_objects(_on_scene(task_config(args.task, args.test, preset), scene), args, starts)
+        config = with_objects(_on_scene(task_config(args.task, args.test, preset), scene), args.task, args.objects,
+                              starts)
         env = make_env(args.task, config)
         zeros = np.zeros(env.action_space.shape, dtype=np.float32)
         policy, checkpoint = (lambda observation: zeros), "the zero action" + (
             f" (the {config.residual} base alone)" if config.residual else "")
     else:
         preset = args.preset or run_preset(checkpoint)
-        config = _with_objects(_on_scene(task_config(args.task, args.test, preset,
-                                                     residual=run_residual(checkpoint)), scene), args, starts)
+        config = with_objects(_on_scene(task_config(args.task, args.test, preset,
+                                                    residual=run_residual(checkpoint)), scene), args.task,
+                              args.objects, starts)
         policy = _load(args, checkpoint)
         env = make_env(args.task, config)
         _check(args, checkpoint, policy, env)
