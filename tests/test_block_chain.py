@@ -107,3 +107,19 @@ def test_a_block_counts_as_placed_only_released_and_at_rest():
     RefreshSampledOutputs(runner.plant, runner.plant_context)
     assert runner.objects.touches_robot(runner.plant_context, name)
     assert runner.errors()[0] < 1e-9 and not runner.is_success()
+
+
+def test_a_block_episode_ends_a_settling_second_after_the_chain_is_done():
+    """Sequentially (no switches) the chain is done once Insert has used its budget: the episode ends
+    ``DONE_SETTLE`` later, not at the limit, which the last stage used to run on to."""
+    from seqdex_drake.evaluation.chain_settings import DONE_SETTLE
+
+    runner = ChainRunner(RunConfig(family="building_blocks", max_switches=0, stage_steps=(3, 3, 3, 3),
+                                   untrained_hidden_sizes=(16,), seed=1))
+    step = LoadManual("small_wall").steps[0]
+    runner.start_block(step.block_type, goal_vector(step))
+    limit = runner.episode_limit()
+    outcome = runner.run(limit, stop_on_success=False)
+    period = runner.scenario.control_period
+    assert runner.chain_output("active_stage")[0] == 3 and outcome.time < limit - 0.5
+    assert runner.chain_done_for() == round(DONE_SETTLE["building_blocks"] / period)

@@ -210,6 +210,21 @@ def test_switcher_cap_zero_is_sequential_and_history_is_kept():
     assert [rig.run()[0] for _ in range(3)] == [1, 2, 3]
 
 
+def test_switcher_is_done_only_when_the_last_stage_runs_past_its_budget_with_no_switch_left():
+    rig = SwitcherRig(max_switches=0, budgets=(3, 2, 2, 2))
+    done = []
+    for _ in range(12):
+        rig.run()
+        done.append(rig.switcher.done_for(rig.context))
+    assert done == [0] * 9 + [1, 2, 3]  # Stage 3 entered after 7 ticks, its budget of 2 used after 9.
+    rig = SwitcherRig(budgets=(2, 2, 2, 2))  # Nothing feasible: each budget's end restarts from stage 0 ...
+    ticks = 0
+    while rig.switcher.done_for(rig.context) == 0 and ticks < 100:
+        stage, switches = rig.run()
+        ticks += 1
+    assert (stage, switches) == (3, 3)  # ... until the switches are spent; then the sequential rule runs to the end.
+
+
 class ReadProgress(ReadScore):
     """A hand-written F of a time-aware stage: its input rows end with the stage's progress, which it returns."""
 

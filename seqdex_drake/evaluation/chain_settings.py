@@ -32,3 +32,8 @@ CARRY_GOAL_SYMMETRY = {"building_blocks": np.pi}
 #: approach, and the chain, for good). Tool approaches have no timeout (their figures were measured without).
 APPROACH_TIMEOUT = 3.0
 TIMEOUT_FAMILIES = ("building_blocks",)
+#: A Building Blocks episode ends this long (s) after the chain is done -- its last stage has used its step budget
+#: with no feasibility switch left to restart a stage -- for a released block to come to rest. Before, Insert's policy
+#: ran on, past the 125 steps it was trained for, until the episode's limit (40 s with 3 switches): the limit, not the
+#: chain, set the length of most episodes. Tool episodes run to their limit (their figures were measured so).
+DONE_SETTLE = {"building_blocks": 1.0}

@@ -29,6 +29,7 @@ from seqdex_drake.evaluation.chain_settings import (
     BLOCK_TRAVEL_HEIGHT,
     CARRY_GOAL_SYMMETRY,
     CARRY_STAGES,
+    DONE_SETTLE,
     REENGAGE,
     TIMEOUT_FAMILIES,
 )
@@ -341,11 +342,14 @@ class ChainRunner:
         return self.controller.GetOutputPort(name).Eval(self.controller.GetMyContextFromRoot(self.context))
 
     def run(self, time_limit: float, on_tick: Callable[["ChainRunner"], bool] | None = None,
-            stop_on_success: bool = True) -> Outcome:
+            stop_on_success: bool = True, stop_when_done: bool = True) -> Outcome:
         """Steps control periods until success (if ``stop_on_success``), ``time_limit`` simulated seconds from
-        the episode's start, ``on_tick`` returning False (called after every step), or a simulator failure (a
-        failed outcome naming it)."""
+        the episode's start, ``on_tick`` returning False (called after every step), the family's ``DONE_SETTLE``
+        after the chain is done (if ``stop_when_done``; :meth:`chain_done_for`), or a simulator failure (a failed
+        outcome naming it)."""
         period = self.scenario.control_period
+        settle = DONE_SETTLE.get(self.config.family) if stop_when_done else None
+        settle_ticks = None if settle is None else int(round(settle / period))
         while self.context.get_time() - self._start_time < time_limit - 1e-9:
             try:
                 self.simulator.AdvanceTo(self.context.get_time() + period)
@@ -363,7 +367,15 @@ class ChainRunner:
                 break
             if stop_on_success and self.is_success():
                 break
+            if settle_ticks is not None and self.chain_done_for() >= settle_ticks:
+                break
         return self._outcome(self.is_success(), self.errors())
+
+    def chain_done_for(self) -> int:
+        """Control ticks since the chain was done (its last stage past its budget, no switch to restart a stage:
+        ``PolicySwitcher.done_for``); 0 while it is not."""
+        switcher = self.controller.GetSubsystemByName("switcher")
+        return switcher.done_for(switcher.GetMyContextFromRoot(self.context))
 
     def _outcome(self, success: bool, errors: tuple[float, float], simulator_error: str = "") -> Outcome:
         return Outcome(success=success, time=self.context.get_time() - self._start_time,

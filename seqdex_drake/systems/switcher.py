@@ -309,6 +309,14 @@ class FeasibilitySwitcher(LeafSystem):
             entries = context.get_discrete_state(self._entries_index).get_value()[0]
             discrete_state.set_value(self._entries_index, np.array([entries + 1.0]))
 
+    def done_for(self, context: Context) -> int:
+        """Control ticks the chain has been done for: its last stage running past its step budget, which happens
+        only when no feasibility switch restarted a stage at the budget's end (none left, or none judged; the
+        sequential rule keeps the last stage running); 0 while it is not done."""
+        status = context.get_discrete_state(self._status_index).get_value()
+        last = self.num_stages - 1
+        return max(0, int(status[_STEPS]) - int(self._budgets[last])) if int(status[_STAGE]) == last else 0
+
     def _calc_stage(self, context: Context, output: BasicVector) -> None:
         output.SetAtIndex(0, context.get_discrete_state(self._status_index).GetAtIndex(_STAGE))
 
