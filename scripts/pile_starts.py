@@ -102,12 +102,15 @@ def table(out: Path, rollout: Path) -> str:
             raise ValueError(f"{rollout} episode with seed {episode['seed']} ran {episode.get('object')}, but that "
                              f"start of {out} is {start['block']}: a rollout from other starts?")
     rows = [f"Orient from {len(episodes)} starts in the pile: {sum(e['success'] for e in episodes)} succeeded"]
-    for key in KEYS:
-        counts = collections.defaultdict(lambda: [0, 0])
-        for start, episode in zip(starts, episodes, strict=True):
-            counts[start[key]][0] += bool(episode["success"])
-            counts[start[key]][1] += 1
-        rows.append(f"  {key}: " + ", ".join(f"{value}: {s} / {n}" for value, (s, n) in sorted(counts.items())))
+    for label, only in (("", lambda start: True), ("not upright, ", lambda start: not start["upright"])):
+        for key in KEYS[1:] if label else KEYS:  # Upright blocks have nothing to roll: the keys among the others.
+            counts = collections.defaultdict(lambda: [0, 0])
+            for start, episode in zip(starts, episodes, strict=True):
+                if only(start):
+                    counts[start[key]][0] += bool(episode["success"])
+                    counts[start[key]][1] += 1
+            rows.append(f"  {label}{key}: " + ", ".join(f"{value}: {s} / {n}"
+                                                         for value, (s, n) in sorted(counts.items())))
     return "\n".join(rows)
 
 
