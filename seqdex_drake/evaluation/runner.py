@@ -373,7 +373,7 @@ class ChainRunner:
 
     def chain_done_for(self) -> int:
         """Control ticks since the chain was done (its last stage past its budget, no switch to restart a stage:
-        ``PolicySwitcher.done_for``); 0 while it is not."""
+        ``FeasibilitySwitcher.done_for``); 0 while it is not."""
         switcher = self.controller.GetSubsystemByName("switcher")
         return switcher.done_for(switcher.GetMyContextFromRoot(self.context))
 
