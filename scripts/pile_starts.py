@@ -33,17 +33,14 @@ ON_FLOOR = 0.035
 
 def start_keys(q_blocks: np.ndarray, i: int) -> dict:
     """The pick order's keys of block row ``i`` of ``q_blocks`` (an (N, 7) [wxyz, xyz] pile of blocks)."""
-    from seqdex_drake.observation_layout import rotation_matrix
     from seqdex_drake.scene.piles import BOX_CENTER
-    from seqdex_drake.tasks.blocks_common import COVER_RADIUS, COVER_RISE, along_jaws, centre_heights, roll_blocked
+    from seqdex_drake.tasks.blocks_common import pick_keys
 
-    heights = centre_heights(q_blocks)
-    tilt = float(np.degrees(np.arccos(np.clip(rotation_matrix(q_blocks[i, :4])[2, 2], -1.0, 1.0))))
-    near = np.linalg.norm(q_blocks[:, 4:6] - q_blocks[i, 4:6], axis=1) < COVER_RADIUS
-    return {"tilt": round(tilt, 1), "upright": tilt < 20.0, "side": 70.0 <= tilt <= 110.0,
-            "covered": bool(np.any(near & (heights > heights[i] + COVER_RISE))),
-            "roll_blocked": roll_blocked(q_blocks, i), "along_jaws": along_jaws(q_blocks[i]),
-            "on_floor": bool(heights[i] - BOX_CENTER[2] < ON_FLOOR)}
+    keys = pick_keys(q_blocks, i)
+    tilt = keys["tilt"]
+    return {"tilt": round(tilt, 1), "upright": tilt < 20.0, "side": 70.0 <= tilt <= 110.0, "covered": keys["covered"],
+            "roll_blocked": keys["roll_blocked"], "along_jaws": keys["along_jaws"],
+            "on_floor": bool(keys["height"] - BOX_CENTER[2] < ON_FLOOR)}
 
 
 def write_starts(out: Path, types: list[int], limit: int | None) -> int:

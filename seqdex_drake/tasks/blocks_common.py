@@ -107,26 +107,36 @@ def centre_heights(q_blocks: np.ndarray) -> np.ndarray:
     return np.array([row[6] + rotation_matrix(row[:4])[2, 2] * TOTAL_HEIGHT / 2 for row in q_blocks])
 
 
+def pick_keys(q_blocks: np.ndarray, i: int, heights: np.ndarray | None = None) -> dict:
+    """What :func:`accessibility_order` sorts block row ``i`` of ``q_blocks`` by: its tilt [deg], whether another
+    block's centre lies within ``COVER_RADIUS`` and ``COVER_RISE`` above its centre (covered), :func:`roll_blocked`,
+    :func:`along_jaws` and its centre's height (``heights``: :func:`centre_heights` of ``q_blocks``, if known)."""
+    heights = centre_heights(q_blocks) if heights is None else heights
+    up_z = rotation_matrix(q_blocks[i, :4])[2, 2]  # The block's z axis, world z component.
+    near = np.linalg.norm(q_blocks[:, 4:6] - q_blocks[i, 4:6], axis=1) < COVER_RADIUS
+    return {"tilt": float(np.degrees(np.arccos(np.clip(up_z, -1.0, 1.0)))),
+            "covered": bool(np.any(near & (heights > heights[i] + COVER_RISE))),
+            "roll_blocked": roll_blocked(q_blocks, i), "along_jaws": along_jaws(q_blocks[i]),
+            "height": float(heights[i])}
+
+
 def accessibility_order(q_blocks: np.ndarray, candidates: list[int]) -> list[int]:
     """``candidates`` (rows of ``q_blocks``, an (N, 7) [wxyz, xyz] pile) ordered easiest to fetch first: centre
     in :func:`reachable_region` before outside it; upright (tilt < 20 deg: Orient has nothing to do; in the pile
     Orient stood 7 of 7 such picks and about 1 in 10 of the others) before any other; uncovered (no block centre
     within ``COVER_RADIUS`` and ``COVER_RISE`` above its centre) before covered; then on a long side (70-110 deg:
     Orient's quarter roll) before any other pose; room for Orient's roll (:func:`roll_blocked`); the long axis
-    across Grasp's jaws (:func:`along_jaws`); highest first."""
+    across Grasp's jaws (:func:`along_jaws`); highest first (:func:`pick_keys`)."""
     low, high = reachable_region()
     heights = centre_heights(q_blocks)
     keys = []
     for i in candidates:
-        up_z = rotation_matrix(q_blocks[i, :4])[2, 2]  # The block's z axis, world z component.
-        tilt = np.degrees(np.arccos(np.clip(up_z, -1.0, 1.0)))
         p = q_blocks[i, 4:]
         inside = bool(np.all(p[:2] >= low) and np.all(p[:2] <= high))
-        near = np.linalg.norm(q_blocks[:, 4:6] - p[:2], axis=1) < COVER_RADIUS
-        covered = bool(np.any(near & (heights > heights[i] + COVER_RISE)))
-        side = 70.0 <= tilt <= 110.0
-        keys.append((not inside, tilt >= 20.0, covered, not side, roll_blocked(q_blocks, i), along_jaws(q_blocks[i]),
-                     -heights[i], i))
+        k = pick_keys(q_blocks, i, heights)
+        side = 70.0 <= k["tilt"] <= 110.0
+        keys.append((not inside, k["tilt"] >= 20.0, k["covered"], not side, k["roll_blocked"], k["along_jaws"],
+                     -k["height"], i))
     return [key[-1] for key in sorted(keys)]
 
 
