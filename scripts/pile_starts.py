@@ -5,7 +5,8 @@ Writes a Search -> Orient hand-off buffer (the ``seqdex collect`` format): per c
 centre lies where the hovering hand fits, the rest of the pile as cached, the open hand hovering over the block as
 Orient's resets place it. ``seqdex rollout --scene building_blocks/search`` then runs Orient from each, and
 ``--table`` joins its episodes with the keys the chain's pick order sorts by
-(``tasks/blocks_common.accessibility_order``: upright, covered, on a long side, room for the roll, along the jaws):
+(``tasks/blocks_common.accessibility_order``: on the floor, upright, covered, at most a quarter roll from upright,
+room for the roll, along the jaws; and on a long side, 70-110 deg):
 
     python scripts/pile_starts.py --out runs/handoffs/orient_pile_starts.npz
     seqdex rollout --task orient --zero-action --initial-states runs/handoffs/orient_pile_starts.npz \\
@@ -26,21 +27,19 @@ from pathlib import Path
 import numpy as np
 
 #: The keys ``--table`` breaks Orient's success down by.
-KEYS = ("upright", "covered", "side", "roll_blocked", "along_jaws", "on_floor")
-#: A block whose centre is this close above the box floor lies on the floor, not on other blocks [m].
-ON_FLOOR = 0.035
+KEYS = ("upright", "covered", "side", "quarter", "roll_blocked", "along_jaws", "on_floor")
 
 
 def start_keys(q_blocks: np.ndarray, i: int) -> dict:
     """The pick order's keys of block row ``i`` of ``q_blocks`` (an (N, 7) [wxyz, xyz] pile of blocks)."""
-    from seqdex_drake.scene.piles import BOX_CENTER
-    from seqdex_drake.tasks.blocks_common import pick_keys
+    from seqdex_drake.tasks.blocks_common import QUARTER_ROLL, pick_keys
 
     keys = pick_keys(q_blocks, i)
     tilt = keys["tilt"]
-    return {"tilt": round(tilt, 1), "upright": tilt < 20.0, "side": 70.0 <= tilt <= 110.0, "covered": keys["covered"],
+    return {"tilt": round(tilt, 1), "upright": tilt < 20.0, "side": 70.0 <= tilt <= 110.0,
+            "quarter": tilt <= QUARTER_ROLL, "covered": keys["covered"],
             "roll_blocked": keys["roll_blocked"], "along_jaws": keys["along_jaws"],
-            "on_floor": bool(keys["height"] - BOX_CENTER[2] < ON_FLOOR)}
+            "on_floor": keys["on_floor"]}
 
 
 def write_starts(out: Path, types: list[int], limit: int | None) -> int:
@@ -92,6 +91,10 @@ def write_starts(out: Path, types: list[int], limit: int | None) -> int:
 def table(out: Path, rollout: Path) -> str:
     """Orient's success from the rollout ``rollout`` (episode i from start i) by each key of the starts."""
     keys = json.loads(Path(f"{out}.keys.json").read_text())
+    missing = sorted(set(KEYS) - set(keys[0])) if keys else []
+    if missing:
+        raise ValueError(f"{out}.keys.json has no {', '.join(missing)}: written by an older pile_starts.py; write "
+                         f"the starts again (pile_starts.py --out {out})")
     episodes = json.loads(rollout.read_text())["per_episode"]
     starts = [keys[episode["seed"] % len(keys)] for episode in episodes]  # Episode seed s starts from s mod N.
     for start, episode in zip(starts, episodes, strict=True):

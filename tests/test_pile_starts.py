@@ -31,7 +31,7 @@ def test_starts_keep_the_pile_and_hover_the_hand_over_the_block(tmp_path):
     assert result.returncode == 0, result.stderr[-2000:]
     keys = json.loads(Path(f"{out}.keys.json").read_text())
     assert [k["type"] for k in keys] == [4, 4] and all(k["block"].startswith("block_4_") for k in keys)
-    assert {"upright", "covered", "side", "roll_blocked", "along_jaws", "on_floor"} <= set(keys[0])
+    assert {"upright", "covered", "side", "quarter", "roll_blocked", "along_jaws", "on_floor"} <= set(keys[0])
 
     buffer = load_initial_states(str(out), "orient")
     env = make_env("orient", dataclasses.replace(budget_config("orient"), scenario="building_blocks/search"))
@@ -47,7 +47,8 @@ def test_starts_keep_the_pile_and_hover_the_hand_over_the_block(tmp_path):
 def test_table_joins_a_rollout_by_episode_seed_and_refuses_other_starts(tmp_path):
     out = tmp_path / "starts.npz"
     keys = [{"pile": 0, "block": f"block_1_{k}", "type": 1, "tilt": 90.0, "upright": False, "covered": k == 1,
-             "side": True, "roll_blocked": k > 0, "along_jaws": False, "on_floor": False} for k in range(3)]
+             "side": True, "quarter": True, "roll_blocked": k > 0, "along_jaws": False, "on_floor": False}
+            for k in range(3)]
     Path(f"{out}.keys.json").write_text(json.dumps(keys))
     episodes = [{"seed": s, "object": f"block_1_{s % 3}", "success": s % 3 == 0} for s in range(4)]
     rollout = tmp_path / "rollout.json"
@@ -61,3 +62,6 @@ def test_table_joins_a_rollout_by_episode_seed_and_refuses_other_starts(tmp_path
     result = pile_starts("--out", str(out), "--table", str(rollout))
     assert result.returncode == 2 and "a rollout from other starts?" in result.stderr
     assert "Traceback" not in result.stderr
+    Path(f"{out}.keys.json").write_text(json.dumps([{k: v for k, v in key.items() if k != "quarter"} for key in keys]))
+    result = pile_starts("--out", str(out), "--table", str(rollout))
+    assert result.returncode == 2 and "has no quarter: written by an older pile_starts.py" in result.stderr

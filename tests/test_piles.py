@@ -142,6 +142,37 @@ def test_accessibility_order_prefers_reachable_upright_uncovered_then_side_then_
     assert accessibility_order(q, [0, 1]) == [1, 0]
 
 
+def test_accessibility_order_prefers_blocks_resting_on_others_to_blocks_on_the_box_floor():
+    from seqdex_drake.scene.piles import BOX_CENTER
+    from seqdex_drake.tasks.blocks_common import ON_FLOOR, accessibility_order, pick_keys, reachable_region
+
+    low, high = reachable_region()
+    mid = (low + high) / 2
+    floor = BOX_CENTER[2]
+    q = np.array([
+        _block([*mid, floor + 0.0005]),                          # 0: upright on the floor (centre 2.9 cm up)
+        _block([*(mid + [0.08, 0.0]), floor + 0.05], np.pi / 2),  # 1: on its side, on other blocks
+        _block([*(mid + [0.0, 0.08]), floor + 0.016], np.pi / 2),  # 2: on its side on the floor
+    ])
+    assert [pick_keys(q, i)["on_floor"] for i in range(3)] == [True, False, True]
+    assert accessibility_order(q, [0, 1, 2]) == [1, 0, 2]  # On others first; on the floor, upright first.
+    q[0, 6] = floor + ON_FLOOR  # The upright block raised onto others: its centre 6.4 cm above the floor.
+    assert accessibility_order(q, [0, 1, 2]) == [0, 1, 2]
+
+
+def test_accessibility_order_prefers_at_most_a_quarter_roll_from_upright():
+    from seqdex_drake.tasks.blocks_common import QUARTER_ROLL, accessibility_order, reachable_region
+
+    low, high = reachable_region()
+    mid = (low + high) / 2
+    q = np.array([
+        _block([*(mid - [0.08, 0.0]), 0.70], np.radians(QUARTER_ROLL + 20.0)),  # 0: highest, past a quarter roll
+        _block([*(mid + [0.08, 0.0]), 0.66], np.radians(60.0)),                 # 1: leaning, 60 deg from upright
+        _block([*(mid - [0.0, 0.08]), 0.69], np.radians(QUARTER_ROLL - 1.0)),  # 2: on a side, tilted a bit back
+    ])
+    assert accessibility_order(q, [0, 1, 2]) == [2, 1, 0]  # Within a quarter roll first; then the higher.
+
+
 def _yawed(p, yaw, roll=0.0):
     """A pile row turned by ``yaw`` about world z after ``roll`` about x, at ``p``."""
     from pydrake.math import RollPitchYaw

@@ -63,6 +63,16 @@ def sample_box_xy(rng: np.random.Generator) -> np.ndarray:
 #: A block whose centre has another block's centre within this horizontal distance (m) and more than
 #: ``COVER_RISE`` (m) higher is covered (centres, not origins: :func:`centre_heights`).
 COVER_RADIUS, COVER_RISE = 0.05, 0.01
+#: A block whose centre lies less than this above the box floor rests on the floor, not on other blocks [m]. In
+#: the pile Orient stood 1 of 49 such blocks against 9 of 49 resting on others (``scripts/pile_starts.py``), and
+#: Grasp lifted 1 of 10 upright ones on the floor against 5 of 7 on others (``scripts/grasp_in_pile.py``): the
+#: fingers need room below the block's neighbours.
+ON_FLOOR = 0.035
+#: A block tilted at most this far from upright [deg] stands up by Orient's side stroke alone (a quarter roll or
+#: less); one tilted further must first be tipped from its back onto a side. In the pile Orient stood 9 of 47 of
+#: the former against 1 of 51 of the latter (resting on others and uncovered: 7 of 17 against 1 of 25;
+#: ``scripts/pile_starts.py``).
+QUARTER_ROLL = 100.0
 
 
 #: Orient's roll needs room on the side its top moves to: a neighbour whose centre lies within ``ROLL_ROOM`` (m)
@@ -109,24 +119,27 @@ def centre_heights(q_blocks: np.ndarray) -> np.ndarray:
 
 def pick_keys(q_blocks: np.ndarray, i: int, heights: np.ndarray | None = None) -> dict:
     """What :func:`accessibility_order` sorts block row ``i`` of ``q_blocks`` by: its tilt [deg], whether another
-    block's centre lies within ``COVER_RADIUS`` and ``COVER_RISE`` above its centre (covered), :func:`roll_blocked`,
-    :func:`along_jaws` and its centre's height (``heights``: :func:`centre_heights` of ``q_blocks``, if known)."""
+    block's centre lies within ``COVER_RADIUS`` and ``COVER_RISE`` above its centre (covered), whether it rests on
+    the box floor (``ON_FLOOR``), :func:`roll_blocked`, :func:`along_jaws` and its centre's height (``heights``:
+    :func:`centre_heights` of ``q_blocks``, if known)."""
     heights = centre_heights(q_blocks) if heights is None else heights
     up_z = rotation_matrix(q_blocks[i, :4])[2, 2]  # The block's z axis, world z component.
     near = np.linalg.norm(q_blocks[:, 4:6] - q_blocks[i, 4:6], axis=1) < COVER_RADIUS
     return {"tilt": float(np.degrees(np.arccos(np.clip(up_z, -1.0, 1.0)))),
             "covered": bool(np.any(near & (heights > heights[i] + COVER_RISE))),
+            "on_floor": bool(heights[i] - BOX_CENTER[2] < ON_FLOOR),
             "roll_blocked": roll_blocked(q_blocks, i), "along_jaws": along_jaws(q_blocks[i]),
             "height": float(heights[i])}
 
 
 def accessibility_order(q_blocks: np.ndarray, candidates: list[int]) -> list[int]:
     """``candidates`` (rows of ``q_blocks``, an (N, 7) [wxyz, xyz] pile) ordered easiest to fetch first: centre
-    in :func:`reachable_region` before outside it; upright (tilt < 20 deg: Orient has nothing to do; in the pile
-    Orient stood 7 of 7 such picks and about 1 in 10 of the others) before any other; uncovered (no block centre
-    within ``COVER_RADIUS`` and ``COVER_RISE`` above its centre) before covered; then on a long side (70-110 deg:
-    Orient's quarter roll) before any other pose; room for Orient's roll (:func:`roll_blocked`); the long axis
-    across Grasp's jaws (:func:`along_jaws`); highest first (:func:`pick_keys`)."""
+    in :func:`reachable_region` before outside it; resting on other blocks before on the box floor (``ON_FLOOR``);
+    upright (tilt < 20 deg: Orient has nothing to do; in the pile Orient stood 7 of 7 such picks and about 1 in 10
+    of the others) before any other; uncovered (no block centre within ``COVER_RADIUS`` and ``COVER_RISE`` above
+    its centre) before covered; then at most a quarter roll from upright (``QUARTER_ROLL``) before tilted further;
+    room for Orient's roll (:func:`roll_blocked`); the long axis across Grasp's jaws (:func:`along_jaws`); highest
+    first (:func:`pick_keys`)."""
     low, high = reachable_region()
     heights = centre_heights(q_blocks)
     keys = []
@@ -134,9 +147,8 @@ def accessibility_order(q_blocks: np.ndarray, candidates: list[int]) -> list[int
         p = q_blocks[i, 4:]
         inside = bool(np.all(p[:2] >= low) and np.all(p[:2] <= high))
         k = pick_keys(q_blocks, i, heights)
-        side = 70.0 <= k["tilt"] <= 110.0
-        keys.append((not inside, k["tilt"] >= 20.0, k["covered"], not side, k["roll_blocked"], k["along_jaws"],
-                     -k["height"], i))
+        keys.append((not inside, k["on_floor"], k["tilt"] >= 20.0, k["covered"], k["tilt"] > QUARTER_ROLL,
+                     k["roll_blocked"], k["along_jaws"], -k["height"], i))
     return [key[-1] for key in sorted(keys)]
 
 
