@@ -224,8 +224,8 @@ class ChainRunner:
     def pick_block(self, block_type: int) -> str:
         """The unused block of ``block_type`` to fetch next, the easiest first
         (:func:`~seqdex_drake.tasks.blocks_common.accessibility_order`: where the hovering hand fits, on other
-        blocks rather than the box floor, upright, uncovered, on a side, highest), as a perception system choosing
-        among identical blocks would."""
+        blocks rather than the box floor, upright, uncovered, at most a quarter roll from upright, highest), as a
+        perception system choosing among identical blocks would."""
         if block_type not in BLOCK_SPECS:
             raise ChainRunError(f"unknown block type {block_type}; valid types: {sorted(BLOCK_SPECS)}")
         q = self.objects.positions(self.context)

@@ -65,8 +65,8 @@ def sample_box_xy(rng: np.random.Generator) -> np.ndarray:
 COVER_RADIUS, COVER_RISE = 0.05, 0.01
 #: A block whose centre lies less than this above the box floor rests on the floor, not on other blocks [m]. In
 #: the pile Orient stood 1 of 49 such blocks against 9 of 49 resting on others (``scripts/pile_starts.py``), and
-#: Grasp lifted 1 of 10 upright ones on the floor against 5 of 7 on others (``scripts/grasp_in_pile.py``): the
-#: fingers need room below the block's neighbours.
+#: Grasp, the block stood upright in place, lifted none of 6 on the floor against 4 of 9 on others
+#: (``scripts/grasp_in_pile.py``): the fingers need room below the block's neighbours.
 ON_FLOOR = 0.035
 #: A block tilted at most this far from upright [deg] stands up by Orient's side stroke alone (a quarter roll or
 #: less); one tilted further must first be tipped from its back onto a side. In the pile Orient stood 9 of 47 of
