@@ -121,5 +121,7 @@ def test_a_block_episode_ends_a_settling_second_after_the_chain_is_done():
     limit = runner.episode_limit()
     outcome = runner.run(limit, stop_on_success=False)
     period = runner.scenario.control_period
-    assert runner.chain_output("active_stage")[0] == 3 and outcome.time < limit - 0.5
+    # Ended before the limit, by the settling second: the chain has been done for exactly that long. (The approaches
+    # take most of the time here: each waits for the hand to settle, HANDOVER_SETTLE, up to its 3 s timeout.)
+    assert runner.chain_output("active_stage")[0] == 3 and outcome.time < limit - period
     assert runner.chain_done_for() == round(DONE_SETTLE["building_blocks"] / period)

@@ -8,6 +8,7 @@ import logging
 
 import numpy as np
 import pytest
+from pydrake.math import RotationMatrix
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
@@ -250,6 +251,27 @@ def test_an_approach_that_cannot_arrive_hands_over_after_its_timeout():
     simulator.Initialize()
     simulator.AdvanceTo(1.0)
     assert osc.GetOutputPort("approach_active").Eval(context)[0] == 1.0  # The default: no timeout.
+
+
+def test_a_settle_condition_holds_the_handover_until_the_hand_is_turned_and_slow():
+    """With ``handover_angle`` the approach hands over at the hover point only once the hand holds its orientation
+    (a carry's turn, the ``hold_rotation`` input, included); with ``handover_speed`` only once the hand is slow. The
+    arm is held at home (input fixed), so a turn of 0.2 rad is never made and a moving state is never slowed."""
+    home = np.asarray(LoadScenario(SCENARIO).robot.arm_home)
+    for params, turn, velocity, expected in [
+            (OscParams(), 0.2, np.zeros(7), 0.0),  # Position alone: hands over.
+            (OscParams(handover_angle=0.05), 0.0, np.zeros(7), 0.0),  # Turned as held: hands over.
+            (OscParams(handover_angle=0.05), 0.2, np.zeros(7), 1.0),  # 0.2 rad from the held turn: waits.
+            (OscParams(handover_speed=0.02), 0.0, np.full(7, 0.3), 1.0),  # Moving: waits.
+            (OscParams(handover_speed=0.02), 0.0, np.zeros(7), 0.0)]:  # At rest: hands over.
+        osc, simulator, context = _standalone(params)
+        osc.GetInputPort("franka.state").FixValue(context, np.r_[home, velocity])
+        p_WC = osc.controlled_point(home)
+        osc.GetInputPort("target_position").FixValue(context, p_WC - [0.0, 0.0, 0.05 + 0.005])
+        osc.GetInputPort("hold_rotation").FixValue(context, RotationMatrix.MakeZRotation(turn).matrix().ravel())
+        simulator.Initialize()
+        simulator.AdvanceTo(0.05)
+        assert osc.GetOutputPort("approach_active").Eval(context)[0] == expected, (params, turn, velocity)
 
 
 def test_nan_target_raises_clear_error():

@@ -27,6 +27,15 @@ CARRY_STAGES = {"building_blocks": (("insert", CARRY_HEIGHT),)}
 #: z (``ChainParams.carry_goal_symmetry``): a block seats the same turned by pi, and Grasp's jaws leave it 10-15 deg
 #: off its yaw and tilted along its length.
 CARRY_GOAL_SYMMETRY = {"building_blocks": np.pi}
+#: The Building Blocks approach hands over only with the hand within this angle (rad) of its held orientation and
+#: its centre slower than this speed (m/s) (``ChainParams.handover_angle``, ``handover_speed``). The carry turns the
+#: hand as the block in it turns; handed over on position alone, it left the hand still turning at 0.3-0.5 rad/s
+#: with the block turning in the pinch (traced: the main command's seed 15), and Insert's wrist held a turn that no
+#: longer matched the block. Insert's env starts from a carry done at rest (``tasks/carry.carry_to_goal``). The OSC
+#: holds the hand 6-7 deg off its orientation at rest over the pile and in the carry (a steady-state error), so these
+#: approaches mostly end by their timeout (``APPROACH_TIMEOUT``), the hand at rest; the wrist IK then takes the
+#: rest of the turn. A looser angle, ending them sooner, has not been measured.
+HANDOVER_SETTLE = {"building_blocks": (0.035, 0.02)}
 #: The time (s) an episode's limit allows per approach; for Building Blocks also the approach's timeout, after which
 #: it hands over where the hand is (fingers curled by an untrained Search caught on the pile and held the Orient
 #: approach, and the chain, for good). Tool approaches have no timeout (their figures were measured without).

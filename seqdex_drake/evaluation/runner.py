@@ -30,6 +30,7 @@ from seqdex_drake.evaluation.chain_settings import (
     CARRY_GOAL_SYMMETRY,
     CARRY_STAGES,
     DONE_SETTLE,
+    HANDOVER_SETTLE,
     REENGAGE,
     TIMEOUT_FAMILIES,
 )
@@ -159,6 +160,7 @@ class ChainRunner:
                              approach_timeout=APPROACH_TIMEOUT if config.family in TIMEOUT_FAMILIES else np.inf,
                              carry_stages=CARRY_STAGES.get(config.family, ()),
                              carry_goal_symmetry=CARRY_GOAL_SYMMETRY.get(config.family, 0.0))
+        params.handover_angle, params.handover_speed = HANDOVER_SETTLE.get(config.family, (np.inf, np.inf))
         if config.untrained_hidden_sizes is not None:
             params.untrained_hidden_sizes = tuple(config.untrained_hidden_sizes)
         builder = DiagramBuilder()

@@ -91,6 +91,11 @@ class ChainParams:
     approach_timeout: float = float("inf")
     """The approach's ``OscParams.approach_timeout``: seconds after which an approach that has not reached the hover
     point hands over where the hand is (the stage's clock stops while the approach runs)."""
+    handover_angle: float = float("inf")
+    """The approach's ``OscParams.handover_angle``: it hands over only with the hand within this angle (rad) of the
+    orientation it holds (a carry's turn included)."""
+    handover_speed: float = float("inf")
+    """The approach's ``OscParams.handover_speed``: it hands over only with the hand centre slower than this (m/s)."""
     approach_stages: tuple[str, ...] = ()
     """Tasks whose stage, entered in sequence, starts with the approach bringing the hand back to the hover point
     (where its policy's resets put it), as after a feasibility switch. Empty: the previous stage's terminal state
@@ -251,6 +256,9 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
         osc_params = dataclasses.replace(osc_params, reengage_distance=params.reengage_distance)
     if params.travel_height > 0.0:
         osc_params = dataclasses.replace(osc_params, travel_height=params.travel_height)
+    if params.handover_angle < float("inf") or params.handover_speed < float("inf"):
+        osc_params = dataclasses.replace(osc_params, handover_angle=params.handover_angle,
+                                         handover_speed=params.handover_speed)
     if params.approach_timeout < float("inf"):
         osc_params = dataclasses.replace(osc_params, approach_timeout=params.approach_timeout)
     osc = builder.AddNamedSystem("osc", OperationalSpaceController(

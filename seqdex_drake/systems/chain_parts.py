@@ -26,7 +26,7 @@ from pydrake.systems.framework import BasicVector, Context, DiscreteValues, Even
 
 from seqdex_drake.robots.arm_ik import PalmIK
 from seqdex_drake.systems.observations import ObservationTarget
-from seqdex_drake.systems.osc import held_orientation
+from seqdex_drake.systems.osc import turned_orientation
 from seqdex_drake.systems.policy import ACTION_SIZE, HAND_SIZE
 from seqdex_drake.tasks.carry import CARRY_REACH, MAX_CARRY_TURN, nearest_equivalent
 
@@ -246,6 +246,13 @@ class WristTargetIntegrator(LeafSystem):
     through. The state is the target held during the last control period, so the integration continues from
     the OSC's last command when a policy takes over.
 
+    The held orientation while the policy is in charge is ``R_off R_WP_hold`` with R_off the ``hold_rotation``
+    input's value at the last tick before the policy took over, latched (state) until the approach is in charge
+    again, as the sub-task env holds the palm orientation its carry left (``tasks/carry.py``): the carry's R_off
+    follows the held block, and a block that turns in a compliant pinch while the wrist follows it made a feedback
+    loop (traced in the whole chain: the palm swung at 1.5-2.9 rad/s through Insert's descent, the block turned
+    +-20 deg in the jaws, and Insert never started to lower it).
+
     Input ports: ``franka.state`` (14, read at initialization), ``osc.desired_state`` (14),
     ``wrist_translation`` (3), ``policy_in_charge`` (1), ``hold_rotation`` (9, optional: the held orientation is
     R_off ``R_WP_hold``, R_off the input row-major, :class:`ApproachTarget`). Output port:
@@ -267,8 +274,9 @@ class WristTargetIntegrator(LeafSystem):
         self._turn_port = self.DeclareVectorInputPort("hold_rotation", 9)
         self._held = [None, R_WP_hold]
         self._q_index = self.DeclareDiscreteState(NUM_ARM)
-        tickets = {self.discrete_state_ticket(self._q_index), self._osc_port.ticket(), self._wrist_port.ticket(),
-                   self._in_charge_port.ticket(), self._turn_port.ticket()}
+        self._turn_index = self.DeclareDiscreteState(np.eye(3).ravel())  # R_off latched at the handover.
+        tickets = {self.discrete_state_ticket(self._q_index), self.discrete_state_ticket(self._turn_index),
+                   self._osc_port.ticket(), self._wrist_port.ticket(), self._in_charge_port.ticket()}
         self._output_port = self.DeclareVectorOutputPort("franka.desired_state", 2 * NUM_ARM, self._calc,
                                                          prerequisites_of_calc=tickets)
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
@@ -279,7 +287,8 @@ class WristTargetIntegrator(LeafSystem):
             return np.asarray(self._osc_port.Eval(context), dtype=float)
         q = context.get_discrete_state(self._q_index).get_value()
         p_WC = self._ik.palm_position(q) + self._wrist_port.Eval(context)
-        q_next = self._ik.step(q, p_WC, held_orientation(self._turn_port, context, self._R_WP, self._held))
+        turn = np.asarray(context.get_discrete_state(self._turn_index).get_value(), dtype=float)
+        q_next = self._ik.step(q, p_WC, turned_orientation(turn, self._R_WP, self._held))
         # The target moves at (q_next - q) / period: fed forward as the desired velocity, as the sub-task env does
         # (without it the arm's heavily damped PD trails a moving wrist command by centimetres).
         return np.concatenate((q_next, (q_next - q) / self._period))
@@ -289,11 +298,19 @@ class WristTargetIntegrator(LeafSystem):
 
     def _initialize(self, context: Context, discrete_state: DiscreteValues) -> None:
         discrete_state.set_value(self._q_index, self._state_port.Eval(context)[:NUM_ARM])
+        discrete_state.set_value(self._turn_index, np.eye(3).ravel())
+
+    def held_turn(self, context: Context) -> RotationMatrix:
+        """R_off as latched now: the one the policy's wrist holds (the identity before any handover)."""
+        return RotationMatrix(np.asarray(context.get_discrete_state(self._turn_index).get_value()).reshape(3, 3))
 
     def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
         # The held output is exactly this tick's command and is usually cached (the station read it), so the
         # IK step is not solved twice per tick.
         discrete_state.set_value(self._q_index, self._output_port.Eval(context)[:NUM_ARM])
+        if self._in_charge_port.Eval(context)[0] < 0.5:  # The approach's turn, followed until the policy takes over.
+            discrete_state.set_value(self._turn_index, self._turn_port.Eval(context) if self._turn_port.HasValue(
+                context) else np.eye(3).ravel())
 
 
 class ChainMarker(LeafSystem):

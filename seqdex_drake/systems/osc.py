@@ -26,7 +26,9 @@ hold and the joint PD behaves as a velocity servo around the planned motion). Bo
 
 Handover (output ``approach_active``): 1 while the controller is in charge, 0 once the controlled point is
 within ``hover_tolerance`` of the hover point or within ``handover_distance`` of the target itself (the
-policy then moves the hand close to the target without the OSC pulling it back). It turns 1 again only when
+policy then moves the hand close to the target without the OSC pulling it back), and, where ``handover_angle`` and
+``handover_speed`` are finite, the hand within that angle of its held orientation and the controlled point
+slower than that speed (a carry hands over a settled block, its turn done). It turns 1 again only when
 the target is farther than ``reengage_distance`` from the controlled point (a new or moved target), or when the
 optional ``stage_epoch`` input changes (a chain's stage restarts: it starts from the hover point again); an
 approach that has not ended after ``approach_timeout`` seconds hands over where the hand is. The
@@ -67,7 +69,11 @@ def held_orientation(port, context: Context, R_WP_hold: RotationMatrix, cache: l
     target's matrix by the rotation's identity)."""
     if not port.HasValue(context):
         return R_WP_hold
-    values = np.asarray(port.Eval(context), dtype=float)
+    return turned_orientation(np.asarray(port.Eval(context), dtype=float), R_WP_hold, cache)
+
+
+def turned_orientation(values: np.ndarray, R_WP_hold: RotationMatrix, cache: list) -> RotationMatrix:
+    """``R_off R_WP_hold`` for R_off given row-major in ``values``; ``cache`` as :func:`held_orientation`'s."""
     if cache[0] is None or not np.array_equal(values, cache[0]):
         cache[:] = [values.copy(), RotationMatrix(values.reshape(3, 3)) @ R_WP_hold]
     return cache[1]
@@ -276,7 +282,9 @@ class OperationalSpaceController(LeafSystem):
             discrete_state.set_value(self._epoch_index, epoch)
             discrete_state.set_value(self._since_index, np.array([context.get_time()]))
         was_active = bool(status[0])
-        status[0] = self._next_active(was_active, p_WC, p_WH, p_WT)
+        R_WD = held_orientation(self._turn_port, context, self._R_WD, self._turn_cache)
+        settled = self._settled(X_WPalm.rotation(), R_WD, v) if was_active else True
+        status[0] = self._next_active(was_active, p_WC, p_WH, p_WT, settled)
         now = context.get_time()
         if status[0] and not was_active:
             discrete_state.set_value(self._since_index, np.array([now]))
@@ -290,7 +298,6 @@ class OperationalSpaceController(LeafSystem):
                                               world, world)
         bias = plant.CalcBiasSpatialAcceleration(pc, JacobianWrtVariable.kV, self._palm_frame, self._p_PC,
                                                  world, world)
-        R_WD = held_orientation(self._turn_port, context, self._R_WD, self._turn_cache)
         a_des = self._desired_acceleration(p_WC, X_WPalm.rotation(), J @ v, self.waypoint(p_WC, p_WH), R_WD)
         a_des -= np.concatenate((bias.rotational(), bias.translational()))
 
@@ -328,13 +335,27 @@ class OperationalSpaceController(LeafSystem):
         discrete_state.set_value(self._status_index, status)
         self._record(solve_seconds, time.perf_counter() - start)
 
-    def _next_active(self, active: bool, p_WC: np.ndarray, p_WH: np.ndarray, p_WT: np.ndarray) -> float:
+    def _settled(self, R_WPalm: RotationMatrix, R_WD: RotationMatrix, v: np.ndarray) -> bool:
+        """Whether the hand is within ``handover_angle`` of its held orientation and the controlled point slower
+        than ``handover_speed`` (always, with both infinite)."""
+        p = self._params
+        if np.isinf(p.handover_angle) and np.isinf(p.handover_speed):
+            return True
+        if (R_WD @ R_WPalm.inverse()).ToAngleAxis().angle() > p.handover_angle:
+            return False
+        J = self._plant.CalcJacobianTranslationalVelocity(self._plant_context, JacobianWrtVariable.kV,
+                                                           self._palm_frame, self._p_PC, self._plant.world_frame(),
+                                                           self._plant.world_frame())
+        return bool(np.linalg.norm(J @ v) <= p.handover_speed)
+
+    def _next_active(self, active: bool, p_WC: np.ndarray, p_WH: np.ndarray, p_WT: np.ndarray,
+                     settled: bool = True) -> float:
         """Handover logic with hysteresis (see the module docstring)."""
         p = self._params
         to_target = np.linalg.norm(p_WT - p_WC)
         if active:
             done = np.linalg.norm(p_WH - p_WC) <= p.hover_tolerance or to_target <= p.handover_distance
-            return 0.0 if done else 1.0
+            return 0.0 if done and settled else 1.0
         return 1.0 if to_target > p.reengage_distance else 0.0
 
     def _record(self, solve_seconds: float, update_seconds: float) -> None:

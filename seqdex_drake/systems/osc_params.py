@@ -17,6 +17,11 @@ class OscParams:
     """The approach ends once the controlled point is within this distance (m) of the target itself."""
     hover_tolerance: float = 0.01
     """The approach ends once the controlled point is within this distance (m) of the hover point."""
+    handover_angle: float = float("inf")
+    """The approach ends only once the hand is within this angle (rad) of its held orientation (the ``hold_rotation``
+    input's turn included); inf: the position alone decides."""
+    handover_speed: float = float("inf")
+    """The approach ends only once the controlled point moves slower than this (m/s); inf: no condition."""
     reengage_distance: float = 0.10
     """After a handover the approach restarts only when the target is farther than this (m) from the hand."""
     approach_timeout: float = float("inf")
