@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from seqdex_drake.chaining.chain import ChainError, ChainNames, LoadChain
-from seqdex_drake.chaining.rollouts import run_chain
+from seqdex_drake.chaining.rollouts import collect_transitions, run_chain, run_prefix
 from seqdex_drake.chaining.wrappers import InitialStateVectorEnv, TransitionBonusVectorEnv
 from seqdex_drake.env_state import SceneHandoffError
 from seqdex_drake.envs.serial import SerialVectorEnv
@@ -159,8 +159,6 @@ def test_run_chain_sequential_and_switcher_rules():
 
 
 def test_intermediate_transitions_hand_over_before_the_previous_stage_ends():
-    from seqdex_drake.chaining.rollouts import collect_transitions
-
     envs = [CounterEnv(length=6, goal=3.0), CounterEnv(length=3, goal=4.0)]
     data = collect_transitions(envs, [lambda obs: np.ones(1)] * 2, 1, episodes=2, seed=0, history=4,
                                intermediate=5)
@@ -174,3 +172,35 @@ def test_intermediate_transitions_hand_over_before_the_previous_stage_ends():
     # The same seed draws the same cut points.
     again = collect_transitions(envs, [lambda obs: np.ones(1)] * 2, 1, episodes=2, seed=0, history=4, intermediate=5)
     np.testing.assert_array_equal([state[1] for state in again.states], steps)
+
+
+class DrawingEnv(CounterEnv):
+    """A stage that draws on a hand-over, as Insert draws its plate and goal: the handed-over position moves by a
+    draw from the env's generator."""
+
+    def reset(self, *, seed=None, options=None):
+        observation, info = super().reset(seed=seed, options=options)
+        if (options or {}).get("initial_state") is not None:
+            self.position += float(self.np_random.uniform(-1.0, 1.0))
+        return self._obs(), info
+
+
+def test_hand_overs_draw_the_same_for_the_same_episode_seed_whatever_the_envs_did_before():
+    def stages():
+        return [CounterEnv(length=2), DrawingEnv(length=2), DrawingEnv(length=2)]
+
+    forward = [lambda obs: np.ones(1)] * 3
+    fresh = run_prefix(stages(), forward, 2, seed=5).state
+    used = stages()  # Envs with a history: seeded otherwise and stepped before.
+    for index, env in enumerate(used):
+        env.reset(seed=1000 + index)
+        env.step(np.ones(1))
+    assert run_prefix(used, forward, 2, seed=5).state == fresh
+    assert run_prefix(stages(), forward, 2, seed=6).state != fresh  # Another episode draws otherwise.
+    # F's transitions (the next stage's returns from each hand-over) and the switcher's episodes alike.
+    first = collect_transitions(stages(), forward, 2, episodes=2, seed=0, history=2, intermediate=2)
+    np.testing.assert_array_equal(collect_transitions(used, forward, 2, episodes=2, seed=0, history=2,
+                                                      intermediate=2).returns, first.returns)
+    switcher = [ConstantF(lambda h: 0.0), ConstantF(lambda h: 0.0)]  # Restarts: stage 0 from a handed-over state.
+    runs = [run_chain(envs, forward, seed=3, feasibility=switcher, max_switches=2) for envs in (stages(), used)]
+    assert runs[0] == runs[1] and runs[0].switches == 2

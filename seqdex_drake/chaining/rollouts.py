@@ -5,6 +5,9 @@ Stage envs are :class:`~seqdex_drake.envs.subtask_env.SubtaskEnv`-like (``reset(
 ``reset(options={"initial_state": state})``. A policy is any callable from an observation to an action (see
 :func:`deterministic_policy`). Each stage runs for its own ``episode_length`` steps (its time budget) unless it
 fails first; the switcher (:func:`evaluate_chain` with feasibility functions) may hand over earlier.
+
+Every reset is seeded, hand-overs included (:func:`handover_seed`): a stage that draws on a hand-over (Insert
+draws its plate and goal) draws the same for the same episode seed, whatever its env did before.
 """
 
 import dataclasses
@@ -16,6 +19,13 @@ from seqdex_drake.chaining.feasibility import pad_history, walk_back
 from seqdex_drake.env_state import SceneHandoffError
 
 Policy = Callable[[np.ndarray], np.ndarray]
+
+
+def handover_seed(seed: int, run: int) -> int:
+    """The reset seed of the ``run``-th stage run (``run`` >= 1; run 0 uses ``seed`` itself) of the episode seeded
+    ``seed``: derived from both, so that hand-overs draw the same for the same episode and differ across runs and
+    episodes (an unseeded reset would draw from whatever the env's generator holds, a fresh env's from the OS)."""
+    return int(np.random.SeedSequence([int(seed), int(run)]).generate_state(1)[0])
 
 
 def deterministic_policy(ppo) -> Policy:
@@ -49,8 +59,9 @@ class StageResult:
 
 def run_stage(env, policy: Policy, *, seed: int | None = None, initial_state=None,
               stop: Callable[[np.ndarray], bool] | None = None) -> StageResult:
-    """Runs ``policy`` in ``env`` from a fresh reset (``seed``) or ``initial_state`` until its time budget, a
-    failure, or ``stop(observations so far)`` is true (the switcher's early hand-over)."""
+    """Runs ``policy`` in ``env`` from a reset seeded ``seed`` (from ``initial_state`` if given; seed it too, see
+    :func:`handover_seed`) until its time budget, a failure, or ``stop(observations so far)`` is true (the
+    switcher's early hand-over)."""
     options = None if initial_state is None else {"initial_state": initial_state}
     observation, info = env.reset(seed=seed, options=options)
     observations, total, failed = [observation], 0.0, False
@@ -70,7 +81,8 @@ def run_prefix(envs: Sequence, policies: Sequence[Policy], upto: int, seed: int)
     state; returns stage ``upto``'s result (its final state is the hand-over to stage ``upto + 1``)."""
     state, result = None, None
     for stage in range(upto + 1):
-        result = run_stage(envs[stage], policies[stage], seed=seed if stage == 0 else None, initial_state=state)
+        result = run_stage(envs[stage], policies[stage], seed=seed if stage == 0 else handover_seed(seed, stage),
+                           initial_state=state)
         state = result.state
     return result
 
@@ -114,10 +126,11 @@ def collect_transitions(envs: Sequence, policies: Sequence[Policy], target: int,
         else:
             cut = int(cuts[episode - episodes])
             before = None if target == 1 else run_prefix(envs, policies, target - 2, seed + episode).state
-            result = run_stage(envs[target - 1], policies[target - 1], seed=seed + episode if target == 1 else None,
-                               initial_state=before, stop=lambda observations, cut=cut: len(observations) > cut)
+            result = run_stage(envs[target - 1], policies[target - 1], initial_state=before,
+                               seed=seed + episode if target == 1 else handover_seed(seed + episode, target - 1),
+                               stop=lambda observations, cut=cut: len(observations) > cut)
         state = result.state
-        nxt = run_stage(envs[target], policies[target], initial_state=state)
+        nxt = run_stage(envs[target], policies[target], initial_state=state, seed=handover_seed(seed + episode, target))
         rows["histories"].append(pad_history(result.observations, history))
         rows["returns"].append(nxt.episode_return)
         rows["successes"].append(nxt.success)
@@ -178,8 +191,8 @@ def run_chain(envs: Sequence, policies: Sequence[Policy], seed: int, feasibility
             return bool(_scores(feasibility, pad_history(observations, history))[stage + 1] > 1.0)
 
         try:
-            result = run_stage(envs[stage], policies[stage], seed=seed if state is None else None,
-                               initial_state=state, stop=early)
+            result = run_stage(envs[stage], policies[stage], initial_state=state, stop=early,
+                               seed=seed if state is None else handover_seed(seed, len(stages_run) - 1))
         except SceneHandoffError:  # A switch back to a scene that cannot hold this state (a single block handed
             return ChainOutcome(False, stages_run, switches, steps)  # back to the pile): the episode fails.
         steps += len(result.observations) - 1
