@@ -1,6 +1,6 @@
 """Seven chaining methods on the cheap hand-over chain (reach -> lower), several seeds: the evidence table.
 
-    python benchmarks/chain_methods.py                       # 3 seeds, writes results/chain_methods.md
+    python benchmarks/chain_methods.py                       # 3 seeds; results/chain_methods.md records the runs
     python benchmarks/chain_methods.py --jobs 2              # two seeds at a time (one process each)
     python benchmarks/chain_methods.py --test                # a tiny budget, one seed (smoke test)
 
@@ -54,10 +54,10 @@ def run_seed(args, seed: int) -> None:
     """Runs (or reads back) every method for one seed."""
     from seqdex_drake.chaining.bidirectional import Pipeline
     from seqdex_drake.chaining.chain import LoadChain
-    from seqdex_drake.envs.factory import pipeline_env_kit
+    from seqdex_drake.chaining.stage_envs import default_env_kit
 
     chain = LoadChain("handover")
-    env_kit = pipeline_env_kit()
+    env_kit = default_env_kit()
 
     def log(message: str) -> None:
         print(f"[seed {seed}] {message}", flush=True)
@@ -95,9 +95,9 @@ def handover_heights(run_dir: Path, episodes: int = 20) -> dict | None:
     if not policy.is_file():
         return None
     from seqdex_drake.chaining.rollouts import deterministic_policy, run_stage
+    from seqdex_drake.envs.subtask_env import make_env
     from seqdex_drake.rl.ppo import PPO
     from seqdex_drake.tasks.handover_common import hand_center
-    from seqdex_drake.tasks.registry import make_env
 
     env, act = make_env("reach"), deterministic_policy(PPO.resume(policy))
     heights, usable = [], []
@@ -163,7 +163,7 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=1, help="M, Algorithm 1's forward/backward passes")
     parser.add_argument("--jobs", type=int, default=1, help="seeds run at the same time (one process each)")
     parser.add_argument("--run-root", default=str(ROOT / "runs" / "chain_methods"))
-    parser.add_argument("--out", default=str(ROOT / "results" / "chain_methods.md"))
+    parser.add_argument("--out", default=str(ROOT / "runs" / "chain_methods.md"))
     parser.add_argument("--methods", type=lambda text: text.split(","), default=list(ORDER),
                         help="comma-separated methods to run (default: all seven; policy_seq always runs, it is the "
                              "shared forward phase), e.g. a lambda2 sweep of seqdex,seqdex_no_temporal,tstar,vchain")

@@ -8,7 +8,7 @@ skip inference): ``tick_ms_chain`` times switcher + the same 4 policy systems wi
 ``tick_ms_shipped`` the same with the shipped tool-positioning networks (``--shipped``: its policies with their
 progress inputs and scripted bases, its F; null when nothing is shipped).
 ``policy_ms`` / ``feasibility_ms`` are single forward passes of the default numpy inference path
-(``systems/inference.py``) repeated back to back (weights cache-resident), ``*_torch_ms`` the same through torch;
+(``controller/inference.py``) repeated back to back (weights cache-resident), ``*_torch_ms`` the same through torch;
 ``tick_ms_torch`` is the 4-policy tick with ``inference="torch"``.
 
 The memory floor: a batch-1 policy call reads every weight once, so 4 computing policies read
@@ -55,13 +55,13 @@ from seqdex_drake import (
 )
 from seqdex_drake.chaining.feasibility import FeasibilityConfig, build_feasibility_model
 from seqdex_drake.chaining.feasibility_io import FeasibilityFile
-from seqdex_drake.chaining.spec import ObservationSpec
+from seqdex_drake.controller.inference import FeasibilitySnapshot, PolicySnapshot, limit_blas_threads
+from seqdex_drake.controller.policy import PolicyParams, PolicySystem
+from seqdex_drake.controller.switcher import FeasibilitySwitcher, SwitcherParams
+from seqdex_drake.observation_spec import ObservationSpec
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q
 from seqdex_drake.scene.objects import SceneObjects
 from seqdex_drake.scene.piles import BOX_CENTER
-from seqdex_drake.systems.inference import FeasibilitySnapshot, PolicySnapshot, limit_blas_threads
-from seqdex_drake.systems.policy import PolicyParams, PolicySystem
-from seqdex_drake.systems.switcher import FeasibilitySwitcher, SwitcherParams
 from seqdex_drake.tasks.blocks_common import resting_pose
 
 PERIOD = 1.0 / 60.0
@@ -97,7 +97,7 @@ def time_shipped_tick(folder: str, family: str, ticks: int) -> tuple[float, floa
     from seqdex_drake.chaining.chain_files import observation_sizes
     from seqdex_drake.chaining.feasibility_io import load_feasibility
     from seqdex_drake.chaining.shipped import load_shipped_chain
-    from seqdex_drake.systems.chain_controller import StagePolicyParams
+    from seqdex_drake.controller.chain_controller import StagePolicyParams
 
     tasks = list(LoadChain(family).stages)
     chain = load_shipped_chain(folder, family, tasks, observation_sizes())

@@ -46,7 +46,7 @@ def _child(tasks: list[str], steps: int) -> None:
     """Under callgrind: for each task, counts ``steps`` env steps and dumps a profile named after the task."""
     import numpy as np
 
-    from seqdex_drake.tasks.registry import make_env
+    from seqdex_drake.envs.subtask_env import make_env
 
     def control(*args: str) -> None:
         subprocess.run(["callgrind_control", *args, str(os.getpid())], check=True, stdout=subprocess.DEVNULL)

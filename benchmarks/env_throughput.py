@@ -74,9 +74,10 @@ import time
 
 import numpy as np
 
+from seqdex_drake.envs.subtask_env import make_env
 from seqdex_drake.envs.vector import ProcessVectorEnv
 from seqdex_drake.rl.config import PAPER_TASK_HYPERPARAMETERS, PPOConfig
-from seqdex_drake.tasks.registry import PAPER_TASKS, default_config, make_env, task_names
+from seqdex_drake.tasks.registry import PAPER_TASKS, default_config, task_names
 
 WARMUP_STEPS = 5
 CHUNK_STEPS = 10

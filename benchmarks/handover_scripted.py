@@ -18,8 +18,9 @@ import json
 
 import numpy as np
 
+from seqdex_drake.envs.subtask_env import make_env
 from seqdex_drake.tasks.handover_common import hand_center, place_block_and_hand
-from seqdex_drake.tasks.registry import default_config, make_env
+from seqdex_drake.tasks.registry import default_config
 
 STEP = 0.005  # Lower's wrist_step (m per step at action 1).
 

@@ -39,13 +39,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from seqdex_drake.cli import task_config
-from seqdex_drake.cli.rollout import run_episode, summarize
+from seqdex_drake.envs.subtask_env import make_env
 from seqdex_drake.envs.vector import ProcessVectorEnv
+from seqdex_drake.evaluation.subtask_episodes import run_episode, summarize
 from seqdex_drake.rl.config import PPOConfig
 from seqdex_drake.rl.policy_loading import load_policy
 from seqdex_drake.rl.ppo import PPO
-from seqdex_drake.tasks.registry import make_env
+from seqdex_drake.tasks.run_config import task_config
 
 PRESETS = {"budget": PPOConfig.for_budget, "paper": PPOConfig.for_task}
 

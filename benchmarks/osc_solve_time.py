@@ -20,9 +20,9 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
 from seqdex_drake import LoadScenario, MakeStation
+from seqdex_drake.control.osc import AddOperationalSpaceController
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q
 from seqdex_drake.scene.objects import SceneObjects
-from seqdex_drake.systems.osc import AddOperationalSpaceController
 
 
 def main():

@@ -21,10 +21,10 @@ import time
 import numpy as np
 import torch
 
-from seqdex_drake.cli import task_config
 from seqdex_drake.envs.vector import ProcessVectorEnv
 from seqdex_drake.rl.config import RESIDUAL_HYPERPARAMETERS, PPOConfig
 from seqdex_drake.rl.ppo import PPO
+from seqdex_drake.tasks.run_config import task_config
 
 
 def _env_rate(vec_env, steps: int, seed: int) -> float:

@@ -20,7 +20,7 @@ WORKER_SEED_STRIDE = 100_000
 
 def _controllers() -> dict:
     """Task -> scripted controller class."""
-    from seqdex_drake.scene.tool_grasp_script import ScriptedToolGrasp
+    from seqdex_drake.tasks.scripted.tool_grasp_script import ScriptedToolGrasp
 
     return {"tool_grasp": ScriptedToolGrasp}
 
@@ -74,9 +74,9 @@ def main(argv=None) -> int:
 
 def _collect(task: str, preset: str, episodes: int, seed: int, max_attempts: int | None):
     """One worker's share: ``episodes`` successful episodes from seeds ``seed``, ``seed + 1``, ..."""
-    from seqdex_drake.cli import task_config
+    from seqdex_drake.envs.subtask_env import make_env
     from seqdex_drake.rl.demonstrations import collect_demonstrations
-    from seqdex_drake.tasks.registry import make_env
+    from seqdex_drake.tasks.run_config import task_config
 
     env = make_env(task, task_config(task, False, preset, residual=False))  # Whole actions, not corrections.
     return collect_demonstrations(env, _controllers()[task](), task, episodes, seed, max_attempts)

@@ -1,6 +1,7 @@
 """Learning curves of training runs as CSV + PNG: success rate and return against env steps and wall-clock.
 
-    python scripts/learning_curves.py --run-dir training/tool_grasp_ppo --out results/curves/tool_grasp_ppo
+    python scripts/learning_curves.py --run-dir runs/tool_grasp --out results/curves/tool_grasp
+    python scripts/learning_curves.py --run-dir runs/chain/phases/finetune_1_grasp --out results/curves/chain_grasp
     python scripts/learning_curves.py --test            # a tiny run of the toy env, for CI
 
 Reads the TensorBoard events that ``seqdex train`` writes (``seqdex_drake/evaluation/learning_curves.py``).

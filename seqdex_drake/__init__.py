@@ -30,8 +30,8 @@ def __getattr__(name: str):
         from seqdex_drake.chaining import chain_files
 
         return chain_files.LoadChainCheckpoints
-    if name in _CHAIN_EXPORTS:
-        from seqdex_drake.systems import chain_controller
+    if name in _CHAIN_EXPORTS:  # Needs torch.
+        from seqdex_drake.controller import chain_controller
 
         return getattr(chain_controller, name)
     if name in _POLICY_EXPORTS:  # Needs torch too.

@@ -23,9 +23,9 @@ appends the pixel count (160).
 
 Why this sits at the bottom of the package: the sub-tasks (``tasks/``: rewards, success tests, goal errors), the
 env (``envs/subtask_env.py``), the arm IK and the deployed systems all read the same indices, while only the Drake
-system that *assembles* the vector (:class:`~seqdex_drake.systems.observations.ObservationAssembler`) belongs to
-``systems/``. Keeping the layout here lets ``tasks/`` read it without depending on ``systems/``. This module
-imports numpy only (``pose_vector`` takes any RigidTransform-like object); ``systems/observations.py`` re-exports
+system that *assembles* the vector (:class:`~seqdex_drake.sensors.observations.ObservationAssembler`) belongs to
+``sensors/``. Keeping the layout in the plain-data layer lets every layer read it. This module
+imports numpy only (``pose_vector`` takes any RigidTransform-like object); ``sensors/observations.py`` re-exports
 every name defined here.
 """
 

@@ -63,6 +63,7 @@ from pydrake.visualization import VisualizationConfig
 from seqdex_drake.robots.allegro import ALLEGRO_JOINT_NAMES, ALLEGRO_OPEN_Q
 from seqdex_drake.robots.franka import FRANKA_JOINT_NAMES
 from seqdex_drake.scenario import MODELS_DIR, MODELS_PACKAGE, Scenario, ScenarioError
+from seqdex_drake.scene.freezing import AddObjectFreezer
 from seqdex_drake.scene.perception_geometry import UseLowPolyPerceptionGeometry
 
 FRANKA = "franka"
@@ -306,7 +307,6 @@ def MakeStation(scenario: Scenario, meshcat=None, name: str | None = None) -> Di
     if scenario.robot.arm_gravity_compensation:
         AddArmGravityCompensation(builder, plant)
 
-    from seqdex_drake.scene.freezing import AddObjectFreezer  # Local: scene depends on this module.
 
     AddObjectFreezer(builder, plant, scene_graph, scenario)
 

@@ -69,7 +69,7 @@ def test_typed_configs_reject_unknown_keys():
 
 
 def test_unknown_task_lists_the_valid_ones():
-    from seqdex_drake.tasks.registry import make_env
+    from seqdex_drake.envs.subtask_env import make_env
 
     with pytest.raises(ValueError, match="valid tasks: search, orient"):
         make_env("nope")

@@ -1,4 +1,5 @@
-"""The scripted block Grasp (``scene/block_grasp_script.py``) and the budget block Grasp built on it: the script is
+"""The scripted block Grasp (``tasks/scripted/block_grasp_script.py``) and the budget block Grasp built on it: the
+script is
 Markov in (observation, step), the budget env observes its progress and applies the script as its residual base,
 the script alone lifts a block out of the box, and the phases lift the wrist from step 75 whatever the policy
 sends."""
@@ -9,11 +10,12 @@ import numpy as np
 import pytest
 from script_checks import assert_markov, assert_zero_corrections_apply
 
+from seqdex_drake.envs.subtask_env import make_env
 from seqdex_drake.robots.allegro import p_PalmHc_Palm
-from seqdex_drake.scene.block_grasp_script import ScriptedBlockGrasp, run_episode
 from seqdex_drake.tasks.phases import apply_phases, release_block_grasp_phases
-from seqdex_drake.tasks.registry import budget_config, make_env
+from seqdex_drake.tasks.registry import budget_config
 from seqdex_drake.tasks.residual import make_base
+from seqdex_drake.tasks.scripted.block_grasp_script import ScriptedBlockGrasp, run_episode
 
 
 @pytest.fixture(scope="module")

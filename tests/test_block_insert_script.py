@@ -1,4 +1,5 @@
-"""The scripted block Insert (``scene/block_insert_script.py``) and the budget block Insert built on it: the budget
+"""The scripted block Insert (``tasks/scripted/block_insert_script.py``) and the budget block Insert built on it: the
+budget
 config applies the script as its residual base on yaw-90 goals, the script is Markov in (observation, step) and
 reads the reset's grasp off the observation, and the script alone seats a block on its goal and lets go of it."""
 
@@ -8,9 +9,13 @@ import numpy as np
 import pytest
 from script_checks import assert_markov, assert_zero_corrections_apply
 
+from seqdex_drake.envs.subtask_env import make_env
 from seqdex_drake.observation_layout import GOAL_POSITION_ERROR
 from seqdex_drake.robots.allegro import scale_action_to_limits, unscale_limits_to_action
-from seqdex_drake.scene.block_insert_script import (
+from seqdex_drake.tasks.base import TaskConfig
+from seqdex_drake.tasks.registry import budget_config, default_config
+from seqdex_drake.tasks.residual import make_base
+from seqdex_drake.tasks.scripted.block_insert_script import (
     JOINT_Q,
     RELEASE_DELTA,
     THUMB_ROTATION,
@@ -18,9 +23,6 @@ from seqdex_drake.scene.block_insert_script import (
     ScriptedBlockInsert,
     run_episode,
 )
-from seqdex_drake.tasks.base import TaskConfig
-from seqdex_drake.tasks.registry import budget_config, default_config, make_env
-from seqdex_drake.tasks.residual import make_base
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,5 @@
-"""The scripted block Orient (``scene/block_orient_script.py``) and the budget block Orient built on it: the script is
+"""The scripted block Orient (``tasks/scripted/block_orient_script.py``) and the budget block Orient built on it: the
+script is
 Markov in (observation, step), the budget env observes its progress and applies the script as its residual base,
 and the script alone stands a lying block upright, free in the box, the fingertip moved off it."""
 
@@ -8,10 +9,11 @@ import numpy as np
 import pytest
 from script_checks import assert_markov, assert_zero_corrections_apply
 
-from seqdex_drake.scene.block_orient_script import ScriptedBlockOrient, roll_angle, run_episode
+from seqdex_drake.envs.subtask_env import make_env
 from seqdex_drake.tasks.orient import default_config
-from seqdex_drake.tasks.registry import budget_config, make_env
+from seqdex_drake.tasks.registry import budget_config
 from seqdex_drake.tasks.residual import make_base
+from seqdex_drake.tasks.scripted.block_orient_script import ScriptedBlockOrient, roll_angle, run_episode
 
 
 @pytest.fixture(scope="module")

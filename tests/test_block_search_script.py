@@ -1,4 +1,5 @@
-"""The scripted block Search (``scene/block_search_script.py``) and the budget Search built on it: the budget env
+"""The scripted block Search (``tasks/scripted/block_search_script.py``) and the budget Search built on it: the budget
+env
 observes its progress and applies the script as its residual base, the script is Markov in the observation, and
 alone it uncovers a target its hand hid at reset, leaving the pile in the box and the target where it was."""
 
@@ -6,11 +7,12 @@ import numpy as np
 import pytest
 from script_checks import assert_zero_corrections_apply
 
+from seqdex_drake.envs.subtask_env import make_env
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, p_PalmHc_Palm, scale_action_to_limits
-from seqdex_drake.scene.block_search_script import ScriptedBlockSearch, run_episode
 from seqdex_drake.scene.piles import InsideBox
-from seqdex_drake.tasks.registry import budget_config, default_config, make_env
+from seqdex_drake.tasks.registry import budget_config, default_config
 from seqdex_drake.tasks.residual import make_base
+from seqdex_drake.tasks.scripted.block_search_script import ScriptedBlockSearch, run_episode
 
 
 @pytest.fixture(scope="module")

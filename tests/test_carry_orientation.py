@@ -9,9 +9,9 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import SpatialInertia
 
+from seqdex_drake.controller.chain_parts import MAX_CARRY_TURN, ApproachTarget
 from seqdex_drake.observation_layout import pose_vector
-from seqdex_drake.systems.chain_parts import MAX_CARRY_TURN, ApproachTarget
-from seqdex_drake.systems.observations import ObservationTarget
+from seqdex_drake.sensors.observations import ObservationTarget
 
 p_PalmC = np.array([0.08, 0.0, 0.1])
 R_HOLD = RotationMatrix(RollPitchYaw(np.pi, 0.0, 0.0))  # Palm down.

@@ -8,18 +8,19 @@ import torch
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 from pydrake.systems.framework import DiagramBuilder
 
-from seqdex_drake.modeling.tools import TOOL_SPECS
-from seqdex_drake.observation_layout import PALM_POSE
-from seqdex_drake.rl.networks import ActorCritic
-from seqdex_drake.scene.objects import SceneObjects
-from seqdex_drake.station import MakeStation
-from seqdex_drake.systems.chain_controller import (
+from seqdex_drake.controller.chain_controller import (
     ChainParams,
     ConnectChainController,
     MakeChainController,
     SetChainTarget,
 )
-from seqdex_drake.tasks.registry import default_config, make_env
+from seqdex_drake.envs.subtask_env import make_env
+from seqdex_drake.modeling.tools import TOOL_SPECS
+from seqdex_drake.observation_layout import PALM_POSE
+from seqdex_drake.rl.networks import ActorCritic
+from seqdex_drake.scene.objects import SceneObjects
+from seqdex_drake.station import MakeStation
+from seqdex_drake.tasks.registry import default_config
 
 ACTION = np.r_[np.linspace(-0.5, 0.5, 16), 0.8, -0.6, 0.4]  # Fingers closing a little, the wrist moving.
 TICKS = 30

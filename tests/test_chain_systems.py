@@ -23,7 +23,8 @@ from seqdex_drake import (
 )
 from seqdex_drake.chaining.feasibility import FeasibilityConfig, build_feasibility_model, score
 from seqdex_drake.chaining.feasibility_io import save_feasibility
-from seqdex_drake.cli import observation_spec
+from seqdex_drake.controller.policy import PolicyParams, PolicySystem
+from seqdex_drake.controller.switcher import FeasibilitySwitcher, SwitcherParams, feasibility_score, walk_back
 from seqdex_drake.rl.config import PPOConfig
 from seqdex_drake.rl.networks import ActorCritic
 from seqdex_drake.rl.ppo import PPO
@@ -31,9 +32,8 @@ from seqdex_drake.robots.allegro import p_PalmHc_Palm, scale_action_to_limits, u
 from seqdex_drake.robots.arm_ik import PalmIK
 from seqdex_drake.scene.objects import SceneObjects
 from seqdex_drake.scene.piles import BOX_CENTER
-from seqdex_drake.systems.policy import PolicyParams, PolicySystem
-from seqdex_drake.systems.switcher import FeasibilitySwitcher, SwitcherParams, feasibility_score, walk_back
 from seqdex_drake.tasks.blocks_common import resting_pose
+from seqdex_drake.tasks.run_config import observation_spec
 
 PERIOD = 1.0 / 60.0
 

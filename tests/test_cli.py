@@ -14,10 +14,10 @@ import pytest
 import torch
 
 from seqdex_drake.chaining.terminal_buffer import TerminalBuffer
-from seqdex_drake.cli import TEST_EPISODE_LENGTH, observation_spec, task_config
 from seqdex_drake.cli.main import main
 from seqdex_drake.cli.train import TEST_HORIZON
 from seqdex_drake.tasks.registry import task_names
+from seqdex_drake.tasks.run_config import TEST_EPISODE_LENGTH, observation_spec, task_config
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -132,7 +132,7 @@ def test_unknown_task_exits_2_listing_tasks(tmp_path):
 
 def _tool_grasp_buffer(path):
     """A one-entry tool_grasp -> tool_reorient buffer holding a tool_grasp env state a few steps after reset."""
-    from seqdex_drake.tasks.registry import make_env
+    from seqdex_drake.envs.subtask_env import make_env
 
     env = make_env("tool_grasp", task_config("tool_grasp", True))
     observation, _ = env.reset(seed=3)
@@ -189,7 +189,7 @@ def test_train_from_hand_offs_saved_on_another_scene(tmp_path, capsys):
     the robot and the block over. A state without those fields is refused before training, saying why."""
     import dataclasses
 
-    from seqdex_drake.tasks.registry import make_env
+    from seqdex_drake.envs.subtask_env import make_env
 
     env = make_env("grasp", task_config("grasp", True))
     observation, _ = env.reset(seed=3)
@@ -218,8 +218,8 @@ def test_rollout_from_a_hand_off_buffer(tmp_path, capsys):
     result = json.loads(out.read_text())
     assert result["initial_states"] == buffer and len(result["per_episode"]) == 2
     # The episodes start from the buffer's hand-off (not from the standalone fist grasp) ...
-    from seqdex_drake.cli.rollout import run_episode
-    from seqdex_drake.tasks.registry import make_env
+    from seqdex_drake.envs.subtask_env import make_env
+    from seqdex_drake.evaluation.subtask_episodes import run_episode
 
     env = make_env("tool_reorient", task_config("tool_reorient", True, "budget"))
     starts = []

@@ -118,6 +118,10 @@ def test_task_config_refuses_values_no_episode_runs_with(field, value):
     (["--port", "1"], "--port must be in 1024 .. 65535, got 1"),
     (["--manual", "{binary}", "--headless"], "cannot read it as a YAML assembly manual (not a text file)"),
     (["--record", "{tmp}/afile/replay.html"], "afile is a file, not a directory"),
+    (["--checkpoints", "{tmp}/afile", "--headless"], "afile is a file, not a directory"),
+    (["--checkpoints", "{tmp}/nowhere", "--headless"], "nowhere does not exist"),
+    (["--max-switches", "-1", "--headless"], "--max-switches must be >= 0"),
+    (["--record", "{tmp}/replay.html", "--headless"], "--record needs meshcat"),
 ])
 def test_simulate_chain_refuses_bad_input_up_front(tmp_path, args, message):
     (tmp_path / "afile").write_text("not a directory")
@@ -171,15 +175,15 @@ def test_a_locked_run_directory_refuses_a_second_training(reach_run, tmp_path, c
 
 
 def test_the_lock_dies_with_its_holder(tmp_path):
-    from seqdex_drake.cli import CliError
     from seqdex_drake.cli.run_lock import RunLock
+    from seqdex_drake.user_input import InputError
 
     code = (f"from seqdex_drake.cli.run_lock import RunLock\nlock = RunLock({str(tmp_path / 'run')!r}, create=True)\n"
             "lock.acquire()\nprint('locked', flush=True)\nimport time\ntime.sleep(600)\n")
     holder = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "locked"
-        with pytest.raises(CliError, match=f"process {holder.pid} on host"):
+        with pytest.raises(InputError, match=f"process {holder.pid} on host"):
             RunLock(tmp_path / "run").acquire()
         holder.kill()  # A crash: no chance to release.
         holder.wait(timeout=30)

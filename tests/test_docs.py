@@ -6,7 +6,6 @@ import functools
 import importlib.util
 import json
 import re
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -54,28 +53,21 @@ def test_run_all_finds_a_key_that_is_not_printed():
     assert run_all.lookup({"a": {"b": 2}}, "a/b") == 2 and run_all.meets(0.95, ">= 0.9") and not run_all.meets(6, "< 5")
 
 
-def test_every_key_the_docs_table_names_is_printed_by_its_benchmark(tmp_path):
-    """Runs each benchmark's quick mode through run_all.py and looks every key of the docs table up in its JSON."""
-    if shutil.which("valgrind") is None:
-        pytest.fail("valgrind is not installed (benchmarks/env_instructions.py needs it): apt-get install -y valgrind")
-    keys = _table_keys()
-    names = sorted({benchmark for benchmark, _ in keys})
-    out = tmp_path / "benchmarks.json"
-    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "run_all.py"), "--test", "--out", str(out),
-                           "--only", *names], cwd=ROOT, capture_output=True, text=True, timeout=3600)
-    assert out.exists(), done.stdout[-3000:] + done.stderr[-3000:]
-    results = json.loads(out.read_text())["benchmarks"]
-    failed = {name: results[name].get("error", "")[-800:] for name in names if results[name]["result"] is None}
-    assert not failed, f"benchmarks failed in --test mode: {failed}"
-    run_all = _run_all()
-    missing = []
-    for benchmark, key in keys:
-        try:
-            run_all.lookup(results[benchmark]["result"], key)
-        except KeyError as error:
-            missing.append(f"{benchmark}: {error.args[0]}")
-    assert not missing, f"docs/performance.md names keys its benchmarks no longer print: {missing}"
-    assert done.returncode == 0, done.stdout[-3000:]
+@pytest.mark.parametrize("benchmark", sorted({benchmark for benchmark, _ in _table_keys()}))
+def test_every_key_the_docs_table_names_is_printed_by_its_benchmark(benchmark, benchmark_run):
+    """Each benchmark of the docs table, in its quick mode as run_all.py --test runs it, prints every key the table
+    names for it. The run is the session's one run of that benchmark (conftest.py), which tests/test_benchmarks.py
+    checks too."""
+    record = benchmark_run(benchmark)
+    assert record["result"] is not None, f"{record['command']} failed in --test mode: {record.get('error', '')[-3000:]}"
+    run_all, missing = _run_all(), []
+    for name, key in _table_keys():
+        if name == benchmark:
+            try:
+                run_all.lookup(record["result"], key)
+            except KeyError as error:
+                missing.append(error.args[0])
+    assert not missing, f"docs/performance.md names keys {benchmark} no longer prints: {missing}"
 
 
 # ------------------------------------------------------------------------------------------ commands, links, paths
@@ -90,11 +82,18 @@ def _seqdex_flags() -> dict[str, set[str]]:
 
 
 def _script_flags(path: Path) -> set[str]:
-    return set(re.findall(r"add_argument\(\s*\"(--[\w-]+)\"", path.read_text())) | {"--help"}
+    """The flags of a script: its own ``add_argument`` calls, or those of the ``seqdex`` subcommand it is the thin
+    entry of (``main(["simulate", *sys.argv[1:]])``)."""
+    text = path.read_text()
+    entry = re.search(r"main\(\[\"(\w+)\", \*sys\.argv\[1:\]\]\)", text)
+    if entry:
+        return _seqdex_flags()[entry.group(1)] | {"--help"}
+    return set(re.findall(r"add_argument\(\s*\"(--[\w-]+)\"", text)) | {"--help"}
 
 
 def _commands(page: Path) -> list[str]:
-    """The ``seqdex ...`` and ``python scripts|benchmarks/...`` commands of a page: bash block lines and inline code."""
+    """The ``seqdex ...`` and ``python scripts|benchmarks|experiments/...`` commands of a page: bash block lines and
+    inline code."""
     text = page.read_text()
     lines = [line for block in re.findall(r"```bash\n(.*?)```", text, flags=re.DOTALL) for line in block.splitlines()]
     prose = re.sub(r"```.*?```", "", text, flags=re.DOTALL)
@@ -102,7 +101,7 @@ def _commands(page: Path) -> list[str]:
     commands = []
     for line in lines:
         line = line.split("#", 1)[0].replace("bash scripts/venv.sh ", "").strip()
-        if re.match(r"(seqdex \w|python (scripts|benchmarks)/)", line):
+        if re.match(r"(seqdex \w|python (scripts|benchmarks|experiments)/)", line):
             commands.append(line)
     return commands
 
@@ -128,7 +127,8 @@ def test_commands_name_existing_scripts_subcommands_and_flags(page):
             known = _script_flags(script)
         problems += [f"{command}: no flag {flag}" for flag in sorted(flags - known)]
     # A flag named alone in the prose (`--preset budget`) must be a flag of the seqdex command or of some script.
-    every = set().union(*_seqdex_flags().values(), *(_script_flags(path) for folder in ("scripts", "benchmarks")
+    folders = ("scripts", "benchmarks", "experiments")
+    every = set().union(*_seqdex_flags().values(), *(_script_flags(path) for folder in folders
                                                      for path in (ROOT / folder).glob("*.py")))
     prose = re.sub(r"```.*?```", "", page.read_text(), flags=re.DOTALL)
     alone = {span.split()[0].split("=")[0] for span in re.findall(r"`(--[a-z][^`]*)`", prose)}

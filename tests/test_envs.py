@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-from seqdex_drake.tasks.registry import default_config, make_env, task_names
+from seqdex_drake.envs.subtask_env import make_env
+from seqdex_drake.tasks.registry import default_config, task_names
 
 # The paper's tables; the hand-over chain (reach, lower: not in the paper) uses the base layout and short episodes.
 PAPER_OBSERVATION_SIZE = {"search": 160, "orient": 159, "grasp": 159, "insert": 173,

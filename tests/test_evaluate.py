@@ -1,5 +1,5 @@
 """seqdex evaluate: --test writes the success table (paper layout), both ablations, the pose scatter (with
-points when a feasibility function exists) and resumes from its episode records; bad input is a CliError."""
+points when a feasibility function exists) and resumes from its episode records; bad input is an InputError."""
 
 import argparse
 import csv
@@ -10,7 +10,9 @@ import pytest
 
 from seqdex_drake.chaining.feasibility import FeasibilityConfig, build_feasibility_model
 from seqdex_drake.chaining.feasibility_io import save_feasibility
-from seqdex_drake.cli import CliError, evaluate, observation_spec
+from seqdex_drake.cli import evaluate
+from seqdex_drake.tasks.run_config import observation_spec
+from seqdex_drake.user_input import InputError
 
 
 def parse(*argv):
@@ -55,15 +57,15 @@ def test_evaluate_test_writes_tables_and_plot(tmp_path):
 
 
 def test_bad_input(tmp_path):
-    with pytest.raises(CliError, match="run directory .* does not exist"):
+    with pytest.raises(InputError, match="run directory .* does not exist"):
         evaluate.run(parse("--run-dir", str(tmp_path / "missing"), "--test"))
-    with pytest.raises(CliError, match="at least 1"):
+    with pytest.raises(InputError, match="at least 1"):
         evaluate.run(parse("--run-dir", str(tmp_path), "--episodes", "0"))
     (tmp_path / "feasibility").mkdir()
     config = FeasibilityConfig(history=2, d_model=8, heads=2, layers=1, feedforward=8)
     save_feasibility(tmp_path / "feasibility" / "tool_reorient.pt", build_feasibility_model(160, config), config, 1.0,
                      observation_spec("search", 160), source_task="search", target_task="tool_reorient")
-    with pytest.raises(CliError, match="tool_reorient.pt"):
+    with pytest.raises(InputError, match="tool_reorient.pt"):
         evaluate.run(parse("--task", "tool_positioning", "--run-dir", str(tmp_path), "--test"))
 
 

@@ -11,8 +11,8 @@ import pytest
 
 from seqdex_drake.chaining.feasibility import FeasibilityConfig, build_feasibility_model
 from seqdex_drake.chaining.feasibility_io import save_feasibility
-from seqdex_drake.cli import observation_spec
 from seqdex_drake.cli.main import main
+from seqdex_drake.tasks.run_config import observation_spec
 
 TOOLS = ["evaluate", "--task", "tool_positioning", "--test"]
 

@@ -9,11 +9,12 @@ import numpy as np
 import pytest
 import torch
 
+from seqdex_drake.envs.subtask_env import make_env
 from seqdex_drake.envs.vector import ProcessVectorEnv, WorkerError
 from seqdex_drake.rl.config import PPOConfig
 from seqdex_drake.rl.ppo import PPO
 from seqdex_drake.rl.toy_env import TargetVectorEnv
-from seqdex_drake.tasks.registry import default_config, make_env
+from seqdex_drake.tasks.registry import default_config
 
 TASK, SEED = "grasp", 5
 CONFIG = dataclasses.replace(default_config(TASK), episode_length=6)

@@ -16,7 +16,7 @@ from seqdex_drake.chaining.feasibility import (
     train_feasibility,
 )
 from seqdex_drake.chaining.feasibility_io import load_feasibility, save_feasibility
-from seqdex_drake.chaining.spec import ObservationSpec
+from seqdex_drake.observation_spec import ObservationSpec
 
 SMALL = dict(d_model=32, heads=4, layers=1, feedforward=64, dropout=0.0, mlp_hidden=(64, 64), batch_size=64, lr=1e-3)
 

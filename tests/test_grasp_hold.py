@@ -1,6 +1,6 @@
 """A block in a closed Allegro grasp stays in hand for 2 s while lifted (full station simulation).
 
-The scripted tripod grasp of ``seqdex_drake.scene.grasping``: the block stands upright on the box floor with
+The scripted tripod grasp of ``seqdex_drake.tasks.scripted.grasping``: the block stands upright on the box floor with
 its 0.03 m side along world x; the arm (placed by inverse kinematics) lowers the open hand around it, the
 thumb and the index + middle fingertips close on the two opposite faces with force-balanced PD targets, the
 arm lifts 0.15 m in 1.5 s, and the hand holds for 2 s. Each case simulates 4.5 s (about 3 s of wall time).
@@ -13,7 +13,7 @@ from pydrake.math import RigidTransform, RollPitchYaw
 from seqdex_drake import LoadScenario
 from seqdex_drake.harness import MakeStationHarness
 from seqdex_drake.robots.allegro import ALLEGRO_Q_MAX, ALLEGRO_Q_MIN, FINGERTIP_FRAMES, FINGERTIP_RADIUS, PALM_BODY
-from seqdex_drake.scene.grasping import (
+from seqdex_drake.tasks.scripted.grasping import (
     TRIPOD_DIGITS,
     ExecuteGrasp,
     MakeHandPlant,

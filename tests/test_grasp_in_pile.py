@@ -1,4 +1,4 @@
-"""scripts/grasp_in_pile.py: Grasp measured inside the pile with the target stood upright in place; a short run
+"""experiments/grasp_in_pile.py: Grasp measured inside the pile with the target stood upright in place; a short run
 writes its episode (the block stood upright in the whole pile when Grasp started), bad input is one clear line."""
 
 import json
@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SCRIPT = REPO / "scripts" / "grasp_in_pile.py"
+SCRIPT = REPO / "experiments" / "grasp_in_pile.py"
 
 
 def grasp_in_pile(*args, timeout=300):

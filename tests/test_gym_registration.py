@@ -1,5 +1,5 @@
 """Gymnasium ids of the sub-task envs (``gym.make("seqdex/Grasp-v0")``), their time limits, keyword overrides and
-the reduced-action wrapper for wrist-only tasks."""
+the reduced-action wrapper for wrist-only tasks, and the budget variants' own ids with their reduced action spaces."""
 
 import dataclasses
 import subprocess
@@ -13,9 +13,10 @@ from gymnasium.utils.env_checker import check_env
 from gymnasium.utils.passive_env_checker import check_action_space
 
 import seqdex_drake  # noqa: F401 (registers the ids)
-from seqdex_drake.envs.registration import GYM_IDS, gym_id
+from seqdex_drake.envs.registration import BUDGET_GYM_IDS, GYM_IDS, gym_id, make_budget_env
+from seqdex_drake.envs.subtask_env import make_env
 from seqdex_drake.envs.wrappers import FreeActionsWrapper
-from seqdex_drake.tasks.registry import budget_config, default_config, make_env, task_names
+from seqdex_drake.tasks.registry import budget_config, default_config, task_names
 
 # gym.make's own checker warns about the wrist-only tasks' fixed hand dims (what FreeActionsWrapper removes).
 pytestmark = pytest.mark.filterwarnings("ignore:.*maximum and minimum values are equal")
@@ -47,6 +48,25 @@ def test_every_subtask_is_registered_lazily():
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert result.stdout.split() == ["False", "False"]
+
+
+def test_budget_variants_have_their_own_ids_and_only_free_action_dims():
+    assert set(BUDGET_GYM_IDS) == {"search", "orient", "grasp", "insert", "tool_grasp", "tool_reorient"}
+    assert BUDGET_GYM_IDS["tool_grasp"] == "seqdex/ToolGraspBudget-v0"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # The env checker's "maximum and minimum values are equal" included.
+        env = gym.make(BUDGET_GYM_IDS["grasp"])
+        space = env.action_space
+        assert space.shape == (3,) and np.all(space.low < space.high)  # The wrist residual, hand pinned.
+        assert env.spec.max_episode_steps == budget_config("grasp").episode_length
+        assert env.unwrapped.config == budget_config("grasp")
+        observation, _ = env.reset(seed=0)
+        observation, *_ = env.step(space.sample())
+        assert observation.shape == env.observation_space.shape
+    full = make_env("grasp", budget_config("grasp")).action_space
+    assert full.shape == (19,) and int(np.sum(full.low == full.high)) == 16
+    with pytest.raises(ValueError, match="no small-budget variant"):
+        make_budget_env("reach")
 
 
 @pytest.mark.parametrize("task", task_names())

@@ -1,4 +1,4 @@
-"""The numpy inference snapshots (``systems/inference.py``) against the torch models they copy: the actor MLP with
+"""The numpy inference snapshots (``controller/inference.py``) against the torch models they copy: the actor MLP with
 its observation normalizer, the attention feasibility model (pooling, positional tables, padding, pre- and
 post-norm layers) and the no-history MLP F, on random weights and inputs; staleness after in-place weight
 changes; and the Drake systems' numpy and torch paths giving the same outputs."""
@@ -10,16 +10,16 @@ import pytest
 import torch
 
 from seqdex_drake.chaining.feasibility import FeasibilityConfig, MlpFeasibility, build_feasibility_model
-from seqdex_drake.rl.networks import ActorCritic
-from seqdex_drake.systems.inference import (
+from seqdex_drake.controller.inference import (
     FeasibilityBank,
     FeasibilitySnapshot,
     PolicySnapshot,
     limit_blas_threads,
     snapshot_feasibility,
 )
-from seqdex_drake.systems.policy import PolicyParams, PolicySystem
-from seqdex_drake.systems.switcher import FeasibilitySwitcher, SwitcherParams, feasibility_score
+from seqdex_drake.controller.policy import PolicyParams, PolicySystem
+from seqdex_drake.controller.switcher import FeasibilitySwitcher, SwitcherParams, feasibility_score
+from seqdex_drake.rl.networks import ActorCritic
 
 RTOL = 1e-5
 

@@ -1,4 +1,4 @@
-"""scripts/main_command_seeds.py: the main command's chain over seeds; a short run writes its block's record, bad
+"""experiments/main_command_seeds.py: the main command's chain over seeds; a short run writes its block's record, bad
 input is one clear line."""
 
 import json
@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SCRIPT = REPO / "scripts" / "main_command_seeds.py"
+SCRIPT = REPO / "experiments" / "main_command_seeds.py"
 
 
 def seeds_script(*args, timeout=300):

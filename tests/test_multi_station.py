@@ -1,5 +1,6 @@
 """Several stations and chain controllers in one diagram: ``name=`` makes their subsystem names unique and
-prefixes their Meshcat paths; the README's example runs; a chain without a target says to call SetChainTarget.
+prefixes their Meshcat paths; docs/architecture.md's example runs; a chain without a target says to call
+SetChainTarget.
 
 Every diagram's subsystem names are checked before ``Build()``: Drake aborts the process on duplicates."""
 
@@ -24,7 +25,7 @@ from seqdex_drake.scene.objects import SceneObjects
 from seqdex_drake.tasks.blocks_common import resting_pose
 from seqdex_drake.tasks.handover_common import TABLE_TOP
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ARCHITECTURE = Path(__file__).resolve().parents[1] / "docs" / "architecture.md"
 STAGES = [("reach", None), ("lower", None)]
 PARAMS = ChainParams(untrained_hidden_sizes=(16,))
 
@@ -122,16 +123,16 @@ def test_a_chain_without_a_target_says_to_call_set_chain_target(scenario):
         simulator.AdvanceTo(0.05)
 
 
-def test_the_readme_example_runs(capsys, monkeypatch):
+def test_the_architecture_doc_example_runs(capsys, monkeypatch):
     import pydrake.geometry
 
     monkeypatch.setattr(pydrake.geometry, "StartMeshcat", _loopback_meshcat)
-    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.DOTALL)
+    blocks = re.findall(r"```python\n(.*?)```", ARCHITECTURE.read_text(), flags=re.DOTALL)
     code = [block for block in blocks if "MakeStation(scenario, meshcat=meshcat, name=side)" in block]
-    assert len(code) == 1, "the README's 'Several stations in one diagram' example is missing"
+    assert len(code) == 1, "docs/architecture.md's 'Several stations in one diagram' example is missing"
     assert "simulator.AdvanceTo(1.0)" in code[0]
     namespace = {}
-    exec(compile(code[0].replace("simulator.AdvanceTo(1.0)", "simulator.AdvanceTo(0.1)"), "README.md", "exec"),
-         namespace)
+    exec(compile(code[0].replace("simulator.AdvanceTo(1.0)", "simulator.AdvanceTo(0.1)"), "docs/architecture.md",
+                 "exec"), namespace)
     assert capsys.readouterr().out.split()[-2:] == ["True", "True"]
     assert namespace["context"].get_time() == pytest.approx(0.1)

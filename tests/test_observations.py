@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
+from seqdex_drake.envs.subtask_env import make_env
 from seqdex_drake.robots.allegro import FINGERTIP_FRAMES, PALM_BODY
-from seqdex_drake.systems.observations import pose_vector
-from seqdex_drake.tasks.registry import make_env
+from seqdex_drake.sensors.observations import pose_vector
 from seqdex_drake.tasks.rewards import goal_errors, quaternion_angle
 
 

@@ -14,10 +14,10 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
 from seqdex_drake import LoadScenario, MakeControllerPlant, MakeStation
+from seqdex_drake.control.osc import AddOperationalSpaceController, OperationalSpaceController, OscParams
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q
 from seqdex_drake.robots.franka import FRANKA_EFFORT_MAX, FRANKA_Q_MAX, FRANKA_Q_MIN, FRANKA_V_MAX
 from seqdex_drake.scene.objects import SceneObjects
-from seqdex_drake.systems.osc import AddOperationalSpaceController, OperationalSpaceController, OscParams
 
 SCENARIO = "building_blocks/grasp"
 MAX_TILT_DEG = 15.0
@@ -286,7 +286,7 @@ def test_failed_qp_holds_last_command_and_counts(caplog):
     # Torque limits at 1 % of the effort cannot even hold the arm against gravity: the QP is infeasible.
     osc, simulator, context = _standalone(OscParams(effort_scale=0.01))
     osc.GetInputPort("target_position").FixValue(context, [0.3, 0.1, 0.75])
-    with caplog.at_level(logging.WARNING, logger="seqdex_drake.systems.osc"):
+    with caplog.at_level(logging.WARNING, logger="seqdex_drake.control.osc"):
         simulator.Initialize()
         held = osc.GetOutputPort("franka.desired_state").Eval(context).copy()
         simulator.AdvanceTo(5 / 60)

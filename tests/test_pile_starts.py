@@ -1,4 +1,5 @@
-"""scripts/pile_starts.py: Orient's starts inside the cached pile as a hand-off buffer that ``seqdex rollout --scene``
+"""experiments/pile_starts.py: Orient's starts inside the cached pile as a hand-off buffer that ``seqdex rollout
+--scene``
 runs with the pile kept, their pick keys, and the table that joins a rollout with them."""
 
 import dataclasses
@@ -10,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-SCRIPT = REPO / "scripts" / "pile_starts.py"
+SCRIPT = REPO / "experiments" / "pile_starts.py"
 
 
 def pile_starts(*args, timeout=300):
@@ -21,10 +22,11 @@ def pile_starts(*args, timeout=300):
 def test_starts_keep_the_pile_and_hover_the_hand_over_the_block(tmp_path):
     from seqdex_drake.cli.train import load_initial_states
     from seqdex_drake.env_state import EnvState
+    from seqdex_drake.envs.subtask_env import make_env
     from seqdex_drake.observation_layout import rotation_matrix
     from seqdex_drake.robots.allegro import p_PalmHc_Palm
     from seqdex_drake.scene.piles import InsideBox
-    from seqdex_drake.tasks.registry import budget_config, make_env
+    from seqdex_drake.tasks.registry import budget_config
 
     out = tmp_path / "starts.npz"
     result = pile_starts("--out", str(out), "--limit", "2", "--types", "4")

@@ -98,7 +98,7 @@ def test_search_pile_stays_put_for_ten_seconds_at_the_search_step():
 def test_a_digging_hand_does_not_blow_up_the_pile():
     """Random finger actions in the Search env (an untrained policy digs like this): blocks stay in the box, move
     at hand speeds and do not sink into each other or the hand by more than a couple of centimetres."""
-    from seqdex_drake.tasks.registry import make_env
+    from seqdex_drake.envs.subtask_env import make_env
 
     env = make_env("search")
     env.reset(seed=0)

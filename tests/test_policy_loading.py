@@ -9,12 +9,12 @@ import pytest
 import torch
 
 import seqdex_drake
-from seqdex_drake.cli import TEST_EPISODE_LENGTH, task_config
 from seqdex_drake.cli.main import main
+from seqdex_drake.envs.subtask_env import make_env
 from seqdex_drake.rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from seqdex_drake.rl.policy_loading import Policy, load_policy
 from seqdex_drake.rl.ppo import PPO
-from seqdex_drake.tasks.registry import make_env
+from seqdex_drake.tasks.run_config import TEST_EPISODE_LENGTH, task_config
 
 pytestmark = pytest.mark.filterwarnings("ignore:.*maximum and minimum values are equal")
 

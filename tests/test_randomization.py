@@ -9,7 +9,8 @@ import pytest
 from pydrake.common import RandomGenerator
 
 from seqdex_drake.envs.randomization import RandomizationConfig
-from seqdex_drake.tasks.registry import default_config, make_env, task_names
+from seqdex_drake.envs.subtask_env import make_env
+from seqdex_drake.tasks.registry import default_config, task_names
 
 
 def paper_env(name: str, **overrides):

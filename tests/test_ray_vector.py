@@ -15,9 +15,9 @@ import pytest
 
 from seqdex_drake.envs.factory import make_vector_env
 from seqdex_drake.envs.ray_vector import RayVectorEnv, import_ray, init_ray
-from seqdex_drake.envs.subtask_env import EnvState
+from seqdex_drake.envs.subtask_env import EnvState, make_env
 from seqdex_drake.envs.vector import ProcessVectorEnv, WorkerError
-from seqdex_drake.tasks.registry import default_config, make_env
+from seqdex_drake.tasks.registry import default_config
 
 TASK, SEED = "grasp", 3
 CONFIG = dataclasses.replace(default_config(TASK), episode_length=5)

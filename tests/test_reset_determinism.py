@@ -13,8 +13,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from seqdex_drake.envs.randomization_config import RandomizationConfig
-from seqdex_drake.tasks.registry import default_config, make_env, task_names
+from seqdex_drake.envs.subtask_env import make_env
+from seqdex_drake.tasks.randomization_config import RandomizationConfig
+from seqdex_drake.tasks.registry import default_config, task_names
 
 SEED = 9
 PREVIOUS_STEPS = 8  # Search's ~5 steps/s set the scale; 8 steps leave blocks moving when the episode ends.

@@ -7,11 +7,12 @@ import numpy as np
 import pytest
 import torch
 
+from seqdex_drake.envs.subtask_env import make_env
 from seqdex_drake.rl.networks import ActorCritic
-from seqdex_drake.scene.tool_grasp_script import ScriptedToolGrasp
 from seqdex_drake.tasks.base import TaskConfig
-from seqdex_drake.tasks.registry import budget_config, make_env
+from seqdex_drake.tasks.registry import budget_config
 from seqdex_drake.tasks.residual import apply_residual, make_base
+from seqdex_drake.tasks.scripted.tool_grasp_script import ScriptedToolGrasp
 
 STEPS = 40  # Through the approach and the start of the closing (the fingers move from step 42 - 1 - 6 on).
 
@@ -68,7 +69,7 @@ def test_policy_system_adds_the_base_as_the_env_does():
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import ConstantVectorSource
 
-    from seqdex_drake.systems.policy import PolicyParams, PolicySystem
+    from seqdex_drake.controller.policy import PolicyParams, PolicySystem
 
     env = make_env("tool_grasp", dataclasses.replace(budget_config("tool_grasp"), episode_length=5))
     observation, _ = env.reset(seed=2)
@@ -95,8 +96,7 @@ def test_runs_with_demonstrations_train_whole_actions(tmp_path):
     variant without the residual base; every other budget run has it."""
     import json
 
-    from seqdex_drake.cli import task_config
-    from seqdex_drake.cli.rollout import run_residual
+    from seqdex_drake.tasks.run_config import run_residual, task_config
 
     assert task_config("tool_grasp", False, "budget").residual == "tool_grasp_script"
     assert task_config("tool_grasp", False, "budget", residual=False).residual == ""
@@ -130,9 +130,9 @@ def test_a_budget_residual_run_takes_small_kl_bounded_steps(tmp_path):
     import argparse
     import math
 
-    from seqdex_drake.cli import task_config
     from seqdex_drake.cli.train import DEMO_INIT_STD, _new_run
     from seqdex_drake.rl.config import RESIDUAL_HYPERPARAMETERS
+    from seqdex_drake.tasks.run_config import task_config
 
     args = argparse.Namespace(seed=3, num_envs=None, test=False, demos=None, demo_coef=0.1, steps=None,
                               checkpoint_seconds=None, preset="budget", task="tool_grasp", initial_states=None)

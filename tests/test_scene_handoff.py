@@ -11,10 +11,11 @@ import pytest
 
 from seqdex_drake.env_state import SceneHandoffError, check_handoff, counterpart
 from seqdex_drake.envs.chain_env import ChainEnv
-from seqdex_drake.scene.block_insert_script import ScriptedBlockInsert
+from seqdex_drake.envs.subtask_env import make_env
 from seqdex_drake.tasks.carry import CARRY_HEIGHT
 from seqdex_drake.tasks.insert import BASEPLATE_TOP, LAYER_HEIGHT, PLATE_XY
-from seqdex_drake.tasks.registry import budget_config, make_env
+from seqdex_drake.tasks.registry import budget_config
+from seqdex_drake.tasks.scripted.block_insert_script import ScriptedBlockInsert
 
 
 @pytest.fixture(scope="module")

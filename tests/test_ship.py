@@ -18,7 +18,7 @@ from seqdex_drake.cli.main import main
 from seqdex_drake.rl.checkpoint import load_checkpoint
 from seqdex_drake.rl.config import PPOConfig
 from seqdex_drake.rl.ppo import PPO
-from seqdex_drake.tasks.registry import observation_spec
+from seqdex_drake.tasks.run_config import observation_spec
 
 TASKS = ["tool_grasp", "tool_reorient"]
 #: The budget variants' observation sizes (both observe their progress).
@@ -79,9 +79,15 @@ def test_ship_writes_a_folder_that_loads_with_training_costs_and_its_f(tmp_path,
     assert (stages["tool_grasp"]["env_steps"], stages["tool_reorient"]["env_steps"]) == (5000, 800)
     assert chain.manifest["pipeline"]["method"] == "seqdex" and chain.manifest["pipeline"]["success_rate"] == 0.25
     assert "3910" not in capsys.readouterr().err
-    # The shipped files are the run's, byte for byte.
-    assert (out / "stages" / "tool_grasp" / "best.pt").read_bytes() == \
-        (run_dir / "stages" / "tool_grasp" / "last.pt").read_bytes()
+    # The shipped policies are the run's for inference: its weights, without the optimizer's moments; the F is the
+    # run's, byte for byte.
+    shipped, trained = (load_checkpoint(path) for path in (out / "stages" / "tool_grasp" / "best.pt",
+                                                           run_dir / "stages" / "tool_grasp" / "last.pt"))
+    assert shipped["optimizer"]["state"] == {} and shipped["counters"] == trained["counters"]
+    for key, value in trained["model"].items():
+        assert torch.allclose(shipped["model"][key], value, rtol=0, atol=0, equal_nan=True), key
+    assert (out / "feasibility" / "tool_reorient.pt").read_bytes() == \
+        (run_dir / "feasibility" / "tool_reorient.pt").read_bytes()
     # An existing folder is kept unless --force.
     assert main(["ship", "--run-dir", str(run_dir), "--out", str(out)]) == 2
     assert "already exists; pass --force" in capsys.readouterr().err

@@ -6,13 +6,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from seqdex_drake.chaining.shipped import ShippedChainError, StageRecord, load_shipped_chain, ship_chain
 from seqdex_drake.rl.config import PPOConfig
 from seqdex_drake.rl.ppo import PPO
 from seqdex_drake.tasks.phases import release_tool_grasp_phases
-from seqdex_drake.tasks.registry import observation_spec
+from seqdex_drake.tasks.run_config import observation_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 TASKS = ["tool_grasp", "tool_reorient"]
@@ -118,3 +119,102 @@ def test_simulate_chain_runs_shipped_checkpoints_and_refuses_broken_ones(shipped
     broken = subprocess.run(command, capture_output=True, text=True, timeout=600)
     assert broken.returncode != 0
     assert "tool_reorient/best.pt is missing" in broken.stderr and "Traceback" not in broken.stderr
+
+
+#: The shipped checkpoint folders of the repository (``checkpoints/``), each a chain's policies and F's.
+REPOSITORY_FOLDERS = ["building_blocks", "tool_positioning", "baselines/building_blocks_policy_seq",
+                      "baselines/tool_positioning_policy_seq"]
+
+
+def test_every_shipped_folder_of_the_repository_is_tested():
+    found = sorted(str(path.parent.relative_to(ROOT / "checkpoints"))
+                   for path in (ROOT / "checkpoints").rglob("manifest.json"))
+    assert found == sorted(REPOSITORY_FOLDERS)
+
+
+@pytest.mark.parametrize("name", REPOSITORY_FOLDERS)
+def test_the_repository_s_shipped_policies_load_inference_only_and_step(name):
+    """Each shipped folder loads as the chain runner loads it (hashes, observation specs, task configs); its
+    policies hold no optimizer moments or env state, and each takes one step of a Drake simulation (as the chain
+    controller deploys it: scripted phases, progress input, residual base) on its env's first observation; its F's
+    load for their stages."""
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import ConstantVectorSource
+
+    from seqdex_drake.chaining.chain import LoadChain
+    from seqdex_drake.chaining.chain_files import observation_sizes
+    from seqdex_drake.chaining.feasibility_io import load_feasibility
+    from seqdex_drake.controller.chain_controller import StagePolicyParams
+    from seqdex_drake.controller.policy import PolicySystem
+    from seqdex_drake.envs.subtask_env import make_env
+    from seqdex_drake.rl.checkpoint import load_checkpoint
+    from seqdex_drake.rl.policy_loading import load_policy
+
+    folder = ROOT / "checkpoints" / name
+    chain_name = json.loads((folder / "manifest.json").read_text())["chain"]
+    tasks, sizes = list(LoadChain(chain_name).stages), observation_sizes()
+    chain = load_shipped_chain(folder, chain_name, tasks, sizes)
+    assert chain.missing == [], chain.missing
+    for index, (task, path, config) in enumerate(zip(tasks, chain.policies, chain.configs, strict=True)):
+        state = load_checkpoint(path)
+        assert state["optimizer"]["state"] == {} and "env" not in state, f"{path} holds training state"
+        observation, _ = make_env(task, config).reset(seed=0)
+        size = sizes[task]
+        system = PolicySystem.from_checkpoint(path, size, StagePolicyParams(config, 1.0 / 60.0))
+        builder = DiagramBuilder()
+        builder.AddSystem(system)
+        source = builder.AddSystem(ConstantVectorSource(np.asarray(observation[:size], dtype=float)))
+        builder.Connect(source.get_output_port(), system.GetInputPort("observation"))
+        simulator = Simulator(builder.Build())
+        simulator.AdvanceTo(0.5 / 60.0)
+        raw = system.GetOutputPort("raw_action").Eval(system.GetMyContextFromRoot(simulator.get_context()))
+        assert raw.shape == (19,) and np.isfinite(raw).all() and np.abs(raw).max() <= 1.0, (path, raw)
+        # The network's own output on that observation (the env's, progress included), as load_policy gives it.
+        policy = load_policy(path, task=task)
+        assert np.isfinite(policy(observation)).all()
+        if index > 0 and chain.feasibility[index] is not None:
+            previous = tasks[index - 1]
+            f = load_feasibility(chain.feasibility[index], expected_target_task=task)
+            assert f.source_task == previous and f.threshold > 0
+
+
+def test_shipped_policies_leave_the_training_state_out_and_act_as_trained(tmp_path):
+    """ship_chain writes a policy without its optimizer moments and env state; PPO.resume (the chain controller's
+    loader) and load_policy read it, and it acts exactly as the training checkpoint does."""
+    import torch
+
+    from seqdex_drake.rl.checkpoint import load_checkpoint, save_checkpoint
+    from seqdex_drake.rl.policy_loading import load_policy
+
+    size = SIZES["tool_grasp"] + 1
+    ppo = PPO(PPOConfig(actor_hidden_sizes=(16,), critic_hidden_sizes=(16,), num_envs=1), size, 19,
+              [-1.0] * 19, [1.0] * 19)
+    ppo.obs_spec = observation_spec("tool_grasp", size).to_dict()
+    observations = torch.randn(8, size, generator=torch.Generator().manual_seed(0))
+    ppo.model.update_normalizer(observations)
+    (ppo.model.action_mean(observations).square().sum() + ppo.model.value(observations).sum()).backward()
+    ppo.optimizer.step()  # Adam's moments: what a training checkpoint carries for resuming.
+    state = ppo.state_dict()
+    state["env"] = {"next_obs": observations}  # As a run that saved its vector env's state.
+    source = save_checkpoint(tmp_path / "last.pt", state)
+    assert load_checkpoint(source)["optimizer"]["state"]
+    ship_chain(tmp_path / "shipped", "tool_positioning", [StageRecord("tool_grasp", source, "budget")])
+    shipped = tmp_path / "shipped" / "stages" / "tool_grasp" / "best.pt"
+    written = load_checkpoint(shipped)
+    assert written["optimizer"]["state"] == {} and "env" not in written
+    assert shipped.stat().st_size < source.stat().st_size
+    original = load_checkpoint(source)
+    assert written["model"].keys() == original["model"].keys()
+    for key, value in original["model"].items():
+        assert torch.allclose(written["model"][key], value, rtol=0, atol=0, equal_nan=True), key
+    for key in ("counters", "config", "dims", "best", "obs_spec"):
+        assert written[key] == original[key], key
+    chain = load_shipped_chain(tmp_path / "shipped", "tool_positioning", TASKS, SIZES)
+    assert chain.policies[0] == shipped
+    inputs = np.random.default_rng(1).normal(size=(16, size)).astype(np.float32)
+    assert load_policy(shipped)(inputs).tobytes() == load_policy(source)(inputs).tobytes()
+    with torch.no_grad():
+        resumed = [PPO.resume(path, device="cpu").model.action_mean(torch.as_tensor(inputs)) for path in (source,
+                                                                                                       shipped)]
+    assert torch.equal(*resumed)

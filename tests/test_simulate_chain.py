@@ -42,7 +42,7 @@ def test_record_writes_a_standalone_replay(tmp_path):
 
 @pytest.mark.parametrize("args, message", [
     (["--manual", "nope"], "assembly manual 'nope' not found"),
-    (["--checkpoints", "/nonexistent/run"], "checkpoint directory /nonexistent/run does not exist"),
+    (["--checkpoints", "/nonexistent/run"], "--checkpoints /nonexistent/run does not exist"),
 ])
 def test_bad_input_is_one_clear_line(args, message):
     result = simulate(*args, "--test", "--headless")
@@ -58,7 +58,7 @@ def test_bad_manual_content_and_mismatched_feasibility_file(tmp_path):
     assert "Traceback" not in result.stderr
     from seqdex_drake.chaining.feasibility import FeasibilityConfig, build_feasibility_model
     from seqdex_drake.chaining.feasibility_io import save_feasibility
-    from seqdex_drake.cli import observation_spec
+    from seqdex_drake.tasks.run_config import observation_spec
 
     config = FeasibilityConfig(history=2, d_model=8, heads=2, layers=1, feedforward=8)
     (tmp_path / "run" / "feasibility").mkdir(parents=True)

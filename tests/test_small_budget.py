@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 
+from seqdex_drake.envs.subtask_env import make_env
 from seqdex_drake.rl.config import PPOConfig
 from seqdex_drake.rl.demonstrations import Demonstrations, behaviour_clone, collect_demonstrations
 from seqdex_drake.rl.networks import ActorCritic
@@ -17,7 +18,7 @@ from seqdex_drake.rl.ppo import PPO
 from seqdex_drake.rl.toy_env import TargetVectorEnv
 from seqdex_drake.tasks.handover_common import hand_center
 from seqdex_drake.tasks.phases import ScriptedPhases, apply_phases, release_tool_grasp_phases
-from seqdex_drake.tasks.registry import budget_config, default_config, make_env
+from seqdex_drake.tasks.registry import budget_config, default_config
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -266,7 +267,7 @@ def test_policy_system_applies_the_phases_on_its_active_ticks():
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import ConstantVectorSource
 
-    from seqdex_drake.systems.policy import PolicyParams, PolicySystem
+    from seqdex_drake.controller.policy import PolicyParams, PolicySystem
 
     torch.manual_seed(0)
     model = ActorCritic(159, 19, (), (8,))  # Linear: action = W obs + b (the normalizer is still the identity).
@@ -318,7 +319,7 @@ def test_policy_system_feeds_a_time_aware_policy_its_progress():
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import ConstantVectorSource
 
-    from seqdex_drake.systems.policy import PolicyParams, PolicySystem
+    from seqdex_drake.controller.policy import PolicyParams, PolicySystem
 
     model = ActorCritic(160, 19, (), (8,))  # Linear: hand dim 0 = the progress entry.
     with torch.no_grad():

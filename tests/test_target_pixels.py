@@ -6,8 +6,8 @@ from pydrake.geometry import HalfSpace
 from pydrake.math import RigidTransform
 
 from seqdex_drake.envs.randomization import _scaled_shape
-from seqdex_drake.systems.target_pixels import TargetPixelCounter, _shape_points
-from seqdex_drake.tasks.registry import make_env
+from seqdex_drake.envs.subtask_env import make_env
+from seqdex_drake.sensors.target_pixels import TargetPixelCounter, _shape_points
 
 CAMERA = "top_down"
 

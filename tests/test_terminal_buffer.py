@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from seqdex_drake.chaining import terminal_buffer as terminal_buffer_module
-from seqdex_drake.chaining.spec import ObservationSpec
 from seqdex_drake.chaining.terminal_buffer import TerminalBuffer
+from seqdex_drake.observation_spec import ObservationSpec
 
 SPEC = ObservationSpec(4, "toy: q(2) dq(2)")
 

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from seqdex_drake.envs.subtask_env import SubtaskEnv
-from seqdex_drake.scene.tool_grasp_script import ScriptedToolGrasp, run_episode
 from seqdex_drake.tasks.registry import make_task
+from seqdex_drake.tasks.scripted.tool_grasp_script import ScriptedToolGrasp, run_episode
 
 
 @pytest.fixture(scope="module")

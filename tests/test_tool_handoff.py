@@ -14,7 +14,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 
 from seqdex_drake.envs.subtask_env import SubtaskEnv
 from seqdex_drake.robots.allegro import PALM_BODY, scale_action_to_limits
-from seqdex_drake.systems.observations import pose_vector
+from seqdex_drake.sensors.observations import pose_vector
 from seqdex_drake.tasks.handoff import (
     FIST_FINGER_OPEN,
     FIST_THUMB,

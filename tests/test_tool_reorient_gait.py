@@ -1,5 +1,5 @@
-"""Tool Reorient's scripted base: the searched finger gait (``scene/tool_reorient_gait.py``), its search script
-(``scripts/search_reorient_gait.py``) and the task's held-tool rule (``tasks/tool_reorient.py``)."""
+"""Tool Reorient's scripted base: the searched finger gait (``tasks/scripted/tool_reorient_gait.py``), its search script
+(``experiments/search_reorient_gait.py``) and the task's held-tool rule (``tasks/tool_reorient.py``)."""
 
 import dataclasses
 import json
@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 from pydrake.math import RigidTransform
 
-from seqdex_drake.scene.tool_reorient_gait import GAIT_FILE, FingerGait, GaitParameters, load_gait
-from seqdex_drake.tasks.registry import default_config, make_env
+from seqdex_drake.envs.subtask_env import make_env
+from seqdex_drake.tasks.registry import default_config
 from seqdex_drake.tasks.residual import make_base
+from seqdex_drake.tasks.scripted.tool_reorient_gait import GAIT_FILE, FingerGait, GaitParameters, load_gait
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -53,7 +54,7 @@ def test_the_gait_moves_the_hand_periodically_and_holds_the_wrist():
 
 def test_the_gait_holds_the_previous_hand_action_once_the_tool_is_near_its_goal():
     from seqdex_drake.observation_layout import GOAL_ROTATION_ERROR, PREVIOUS_ACTION
-    from seqdex_drake.scene.tool_reorient_gait import HOLD_BELOW
+    from seqdex_drake.tasks.scripted.tool_reorient_gait import HOLD_BELOW
 
     gait = FingerGait(_gait())
     observation = np.zeros(174)
@@ -114,7 +115,7 @@ def test_a_tool_that_leaves_the_hand_ends_the_episode_as_a_failure():
 
 def test_search_script_scores_candidates_and_writes_the_best(tmp_path):
     out = tmp_path / "gait.json"
-    command = [sys.executable, str(ROOT / "scripts" / "search_reorient_gait.py"), "--iterations", "1",
+    command = [sys.executable, str(ROOT / "experiments" / "search_reorient_gait.py"), "--iterations", "1",
                "--population", "2", "--elites", "1", "--starts", "1", "--workers", "1", "--out", str(out)]
     done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]

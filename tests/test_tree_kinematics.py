@@ -1,4 +1,11 @@
-"""TreeKinematics (the compiled per-step kinematics) against Drake: poses, velocities, the IK's Jacobian step."""
+"""TreeKinematics (the compiled per-step kinematics) against Drake: poses, velocities, the IK's Jacobian step.
+
+Every test runs twice: on the C extension and on its fallback, Drake's kinematics (``SEQDEX_NO_C_EXTENSION=1``);
+the two are compared with each other on random states, and the fallback's warning is checked to come once."""
+
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -14,11 +21,33 @@ from pydrake.multibody.tree import (
 )
 from pydrake.systems.framework import DiagramBuilder
 
+from seqdex_drake.robots import tree_kinematics
 from seqdex_drake.robots.allegro import FINGERTIP_FRAMES, PALM_BODY, p_PalmHc_Palm
 from seqdex_drake.robots.arm_ik import PalmIK
 from seqdex_drake.robots.tree_kinematics import TreeKinematics, rotation_vector
 from seqdex_drake.scenario import LoadScenario
 from seqdex_drake.station import AddStationPlant, MakeControllerPlant
+
+
+def _require_compiled():
+    """Skips a test that needs the C extension where it is not built; in CI (which installs a compiler) fails."""
+    if not tree_kinematics.compiled_available():
+        message = ("the C extension seqdex_drake/robots/_kinematics.c is not built (install gcc and python3-dev, "
+                   "then rerun bash scripts/venv.sh)")
+        if os.environ.get("CI"):
+            pytest.fail(message)
+        pytest.skip(message)
+
+
+@pytest.fixture(params=["compiled", "drake"])
+def backend(request, monkeypatch):
+    """Each test on the C extension and on Drake's kinematics (the fallback, forced by SEQDEX_NO_C_EXTENSION)."""
+    if request.param == "compiled":
+        _require_compiled()
+        monkeypatch.delenv(tree_kinematics.FORCE_DRAKE_VARIABLE, raising=False)
+    else:
+        monkeypatch.setenv(tree_kinematics.FORCE_DRAKE_VARIABLE, "1")
+    return request.param
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +81,7 @@ def _random_state(plant, rng):
     return context
 
 
-def test_frame_states_match_drake_on_the_station_plant(station_plant):
+def test_frame_states_match_drake_on_the_station_plant(station_plant, backend):
     """The six observation frames (fingertips, palm, a free block), at random states, against Drake."""
     plant = station_plant
     hand = plant.GetModelInstanceByName("allegro")
@@ -61,6 +90,7 @@ def test_frame_states_match_drake_on_the_station_plant(station_plant):
     X_FQ = RigidTransform(RollPitchYaw(0.1, -0.4, 0.3), [0.01, -0.02, 0.03])  # An offset point on each.
     kinematics = TreeKinematics(plant, frames)
     offset = TreeKinematics(plant, frames, [X_FQ] * len(frames))
+    assert kinematics.compiled == (backend == "compiled")
     rng = np.random.default_rng(0)
     for _ in range(10):
         context = _random_state(plant, rng)
@@ -86,6 +116,7 @@ def test_frame_states_match_drake_on_the_station_plant(station_plant):
             np.testing.assert_allclose(row_q[7:10], V_WQ.translational(), atol=1e-12)
 
 
+@pytest.mark.usefixtures("backend")
 def test_prismatic_and_offset_joints_match_drake():
     """A small tree with a prismatic joint, joint frames offset in both bodies and a floating branch."""
     plant = MultibodyPlant(0.0)
@@ -116,6 +147,7 @@ def _offset(parent, name, X):
     return FixedOffsetFrame(name, parent, X)
 
 
+@pytest.mark.usefixtures("backend")
 def test_dls_step_matches_the_formula_on_drakes_jacobian(controller_plant):
     """dq = J^T (J J^T + d^2 I)^-1 e with Drake's Jacobian and log map, scaled and clamped as documented."""
     plant, palm = controller_plant, _palm(controller_plant)
@@ -141,6 +173,7 @@ def test_dls_step_matches_the_formula_on_drakes_jacobian(controller_plant):
             np.testing.assert_allclose(ik.step(q, target, R_target, max_step=max_step), expected, atol=1e-12)
 
 
+@pytest.mark.usefixtures("backend")
 def test_palm_ik_reports_drakes_palm_pose_and_converges(controller_plant):
     ik, context = PalmIK(controller_plant, p_PalmC_Palm=p_PalmHc_Palm), controller_plant.CreateDefaultContext()
     q = np.array([0.3, -0.5, 0.2, -2.0, 0.1, 1.8, 0.6])
@@ -155,6 +188,7 @@ def test_palm_ik_reports_drakes_palm_pose_and_converges(controller_plant):
     np.testing.assert_allclose(ik.palm_position(solution), target, atol=1e-4)
 
 
+@pytest.mark.usefixtures("backend")
 def test_rotation_vector_matches_drakes_angle_axis_up_to_half_turns():
     rng = np.random.default_rng(7)
     small_turns = np.c_[np.ones(150), 1e-3 * rng.normal(size=(150, 3))]  # A few milliradians, as the IK sees.
@@ -178,6 +212,7 @@ def _angle_axis(angle, axis):
     return AngleAxis(angle, axis)
 
 
+@pytest.mark.usefixtures("backend")
 def test_quaternions_match_drakes_conversion():
     """The compiled rotation-to-quaternion conversion (Shepperd's method, qw >= 0) agrees with Drake's, also at
     the half turns where w = 0 and each of its pivots is taken."""
@@ -199,6 +234,7 @@ def test_quaternions_match_drakes_conversion():
         np.testing.assert_allclose(q, expected, atol=1e-15)
 
 
+@pytest.mark.usefixtures("backend")
 def test_bad_input_is_a_clear_error(station_plant, controller_plant):
     plant = MultibodyPlant(0.0)
     body = plant.AddRigidBody("ball", SpatialInertia.SolidSphereWithMass(1.0, 0.1))
@@ -221,3 +257,72 @@ def test_bad_input_is_a_clear_error(station_plant, controller_plant):
             [-1.0] * station_plant.num_positions(), [1.0] * station_plant.num_positions())
     with pytest.raises(ValueError, match="at most 64 frames|between 1 and 64 frames"):
         TreeKinematics(controller_plant, [])
+
+
+def test_the_fallback_gives_the_compiled_results(station_plant, controller_plant):
+    """Drake's kinematics (the fallback) against the C extension, call by call, on random states: frame states
+    and poses with offsets, the DLS step (scaled and not) and the log map."""
+    _require_compiled()
+    plant = station_plant
+    hand = plant.GetModelInstanceByName("allegro")
+    block = plant.get_body(plant.GetFloatingBaseBodies().pop())
+    frames = [plant.GetFrameByName(name, hand) for name in FINGERTIP_FRAMES] + [_palm(plant), block.body_frame()]
+    X_FQ = [RigidTransform(RollPitchYaw(0.1 * i, -0.4, 0.3), [0.01, -0.02 * i, 0.03]) for i in range(len(frames))]
+    compiled, drake = (TreeKinematics(plant, frames, X_FQ, compiled=flag) for flag in (True, False))
+    assert compiled.compiled and not drake.compiled
+    rng = np.random.default_rng(11)
+    for _ in range(20):
+        x = plant.GetPositionsAndVelocities(_random_state(plant, rng))
+        np.testing.assert_allclose(drake.states(x.tolist()), compiled.states(x.tolist()), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(drake.poses(x), compiled.poses(x), rtol=0, atol=1e-13)
+    palm = _palm(controller_plant)
+    X_PalmC = [RigidTransform(p_PalmHc_Palm)]
+    compiled, drake = (TreeKinematics(controller_plant, [palm], X_PalmC, compiled=flag) for flag in (True, False))
+    low, high = controller_plant.GetPositionLowerLimits(), controller_plant.GetPositionUpperLimits()
+    for max_step in (0.05, 10.0):
+        for _ in range(20):
+            q = rng.uniform(low, high).tolist()
+            X_WC = compiled.pose(q)
+            target = (X_WC.translation() + rng.normal(scale=0.05, size=3)).tolist()
+            R_target = (RotationMatrix(RollPitchYaw(rng.normal(scale=0.5, size=3))) @ X_WC.rotation()).matrix()
+            args = (q, target, R_target.ravel().tolist(), 0.3, 0.05, max_step, low.tolist(), high.tolist())
+            np.testing.assert_allclose(drake.dls_step(*args), compiled.dls_step(*args), rtol=0, atol=1e-12)
+    for quaternion in rng.normal(size=(100, 4)):
+        R = RotationMatrix(Quaternion(quaternion / np.linalg.norm(quaternion))).matrix()
+        np.testing.assert_allclose(rotation_vector(R, compiled=False), rotation_vector(R, compiled=True), atol=1e-12)
+
+
+def test_without_the_extension_the_package_says_so_once():
+    """A process without the built extension falls back to Drake's kinematics and warns once (every warning
+    shown), naming the fix; a child process started after the warning stays quiet."""
+    script = """
+import subprocess, sys, warnings
+warnings.simplefilter("always")
+sys.modules["seqdex_drake.robots._kinematics"] = None  # As an install without a compiler: the import fails.
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import SpatialInertia
+from seqdex_drake.robots.tree_kinematics import TreeKinematics, rotation_vector
+plant = MultibodyPlant(0.0)
+body = plant.AddRigidBody("free", SpatialInertia.SolidSphereWithMass(1.0, 0.1))
+plant.Finalize()
+for _ in range(3):
+    kinematics = TreeKinematics(plant, [body.body_frame()])
+assert not kinematics.compiled
+assert kinematics.poses([1.0, 0, 0, 0, 0.1, 0.2, 0.3])[9:] == [0.1, 0.2, 0.3]
+rotation_vector([[1, 0, 0], [0, 1, 0], [0, 0, 1]])
+child = subprocess.run([sys.executable, "-c", "import os; print(os.environ.get('SEQDEX_KINEMATICS_WARNED'))"],
+                       capture_output=True, text=True)
+print("child:", child.stdout.strip())
+"""
+    env = {key: value for key, value in os.environ.items()
+           if key not in ("SEQDEX_KINEMATICS_WARNED", tree_kinematics.FORCE_DRAKE_VARIABLE)}
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=120)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stderr.count("SlowKinematicsWarning") == 1, done.stderr
+    assert "install a C compiler and Python's headers (apt-get install gcc python3-dev)" in done.stderr
+    assert "rerun `bash scripts/venv.sh`" in done.stderr
+    assert "child: 1" in done.stdout  # Env workers inherit the mark and do not repeat the warning.
+    forced = subprocess.run([sys.executable, "-c", "from seqdex_drake.robots.tree_kinematics import rotation_vector;"
+                             "rotation_vector([[1, 0, 0], [0, 1, 0], [0, 0, 1]])"], capture_output=True, text=True,
+                            env=dict(env, SEQDEX_NO_C_EXTENSION="1"), timeout=120)
+    assert forced.returncode == 0 and "SlowKinematicsWarning" not in forced.stderr, forced.stderr

@@ -8,9 +8,9 @@ import time
 import numpy as np
 import pytest
 
-from seqdex_drake.envs.subtask_env import EnvState
+from seqdex_drake.envs.subtask_env import EnvState, make_env
 from seqdex_drake.envs.vector import ProcessVectorEnv, WorkerError
-from seqdex_drake.tasks.registry import default_config, make_env
+from seqdex_drake.tasks.registry import default_config
 
 TASK = "grasp"  # A light scene: workers start in about a second.
 SEED = 7

@@ -7,9 +7,9 @@ from pydrake.math import RotationMatrix
 from pydrake.systems.analysis import Simulator
 
 from seqdex_drake import LoadScenario, MakeControllerPlant
+from seqdex_drake.controller.chain_parts import WristTargetIntegrator
 from seqdex_drake.robots.allegro import p_PalmHc_Palm
 from seqdex_drake.robots.arm_ik import PalmIK
-from seqdex_drake.systems.chain_parts import WristTargetIntegrator
 
 SCENARIO = "building_blocks/chain"
 

@@ -9,15 +9,18 @@ Nor does it import the env package: the vector envs of the PPO phases come from 
 
 import dataclasses
 import io
+import json
+import shutil
 import time
 from collections.abc import Callable
 from itertools import pairwise
+from pathlib import Path
 
 import numpy as np
 import torch
 
 from seqdex_drake.atomic import atomic_write
-from seqdex_drake.chaining.chain import ChainSpec
+from seqdex_drake.chaining.chain import ChainSpec, LoadChain
 from seqdex_drake.chaining.feasibility import feasibility_threshold, pad_history, train_feasibility
 from seqdex_drake.chaining.feasibility_io import load_feasibility, save_feasibility
 from seqdex_drake.chaining.pipeline import (
@@ -30,14 +33,16 @@ from seqdex_drake.chaining.pipeline import (
 )
 from seqdex_drake.chaining.rollouts import collect_transitions, deterministic_policy, evaluate_chain, run_prefix
 from seqdex_drake.chaining.single_policy import run_single_policy
-from seqdex_drake.chaining.stage_envs import EnvKit, pooled_env
+from seqdex_drake.chaining.stage_envs import EnvKit, default_env_kit, pooled_env
 from seqdex_drake.chaining.terminal_buffer import TerminalBuffer
 from seqdex_drake.chaining.tstar import fit_tstar, tstar_bonus
 from seqdex_drake.chaining.wrappers import InitialStateVectorEnv, TransitionBonusVectorEnv
 from seqdex_drake.env_state import EnvState, check_handoff
+from seqdex_drake.rl.checkpoint import CheckpointError, load_checkpoint
 from seqdex_drake.rl.config import PPOConfig
 from seqdex_drake.rl.ppo import PPO
-from seqdex_drake.tasks.registry import budget_config, default_config, observation_spec
+from seqdex_drake.tasks.registry import budget_config, default_config
+from seqdex_drake.tasks.run_config import observation_spec
 
 #: Observations kept per transition (the history ablation goes up to H = 15).
 TRANSITION_HISTORY = 15
@@ -53,24 +58,18 @@ class Pipeline:
         resume: continue a run in ``run_dir`` instead of starting one.
         progress: show PPO progress bars.
         log: where one-line progress messages go.
-        env_kit: the env classes of the PPO phases (``seqdex pipeline`` passes
-            :func:`seqdex_drake.envs.factory.pipeline_env_kit`); may be None for a pipeline that only collects,
-            fits F or evaluates, which needs the in-process stage envs alone.
+        env_kit: the env classes of the PPO phases (default:
+            :func:`~seqdex_drake.chaining.stage_envs.default_env_kit`, this package's).
     """
 
     @classmethod
     def open(cls, run_dir, progress: bool = False, log: Callable[[str], None] = print,
              env_kit: EnvKit | None = None) -> "Pipeline":
         """The pipeline run already in ``run_dir`` (its chain and config from ``pipeline.json``)."""
-        from pathlib import Path
-
-        from seqdex_drake.chaining.chain import LoadChain
-
         record_path = Path(run_dir) / "pipeline.json"
         if not record_path.is_file():
             raise PipelineError(f"{run_dir} holds no pipeline run ({record_path.name} is missing); start one with "
                                 f"seqdex pipeline --chain <chain> --run-dir {run_dir}")
-        import json
 
         record = json.loads(record_path.read_text())
         config = PipelineConfig(**record["config"])
@@ -117,11 +116,8 @@ class Pipeline:
         return self._envs
 
     def require_env_kit(self) -> EnvKit:
-        """The env classes of the PPO phases; raises :class:`PipelineError` if none were given."""
-        if self.env_kit is None:
-            raise PipelineError("this pipeline was made without env_kit, which its PPO phases need to build their "
-                                "vector envs; pass env_kit=seqdex_drake.envs.factory.pipeline_env_kit()")
-        return self.env_kit
+        """The env classes of the PPO phases (the ``env_kit`` given, else :func:`default_env_kit`)."""
+        return self.env_kit if self.env_kit is not None else default_env_kit()
 
     def _vector_env(self, index: int, seed: int, num_envs: int):
         task, config = self.stages[index], self.task_configs[index]
@@ -331,10 +327,6 @@ class Pipeline:
     def initial_checkpoint(self, index: int):
         """The checkpoint stage ``index``'s forward phase continues (``config.init_checkpoints``), checked against
         the stage: its observation spec and action size must be the stage env's; None if there is none."""
-        from pathlib import Path
-
-        from seqdex_drake.rl.checkpoint import CheckpointError, load_checkpoint
-
         task = self.stages[index]
         path = self.config.init_checkpoints.get(task)
         if path is None:
@@ -389,8 +381,6 @@ class Pipeline:
         """Takes ``other``'s finished forward phase (policies, buffers, records) and, if it has them, its first
         transition rollouts as this run's own: the chained methods share Algorithm 1's forward phase, so a
         comparison may compute it once per seed. Call before :meth:`execute`."""
-        import shutil
-
         for key in ("seed", "stage_steps", "transition_episodes", "episode_length_cap", "hidden_sizes",
                     "num_envs", "backend", "history"):
             if getattr(other.config, key) != getattr(self.config, key):

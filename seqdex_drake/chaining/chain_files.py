@@ -2,7 +2,7 @@
 into it (the layout ``seqdex pipeline`` writes and ``seqdex ship`` copies into ``checkpoints/<family>/``).
 
 :func:`LoadChainCheckpoints` finds them for
-:func:`~seqdex_drake.systems.chain_controller.MakeChainController` (it only looks for files: it needs neither torch
+:func:`~seqdex_drake.controller.chain_controller.MakeChainController` (it only looks for files: it needs neither torch
 nor Drake); :func:`run_dir_configs` gives each stage's task config as its checkpoint was trained, and
 :func:`observation_sizes` each task's observation size, which a shipped chain's files are checked against.
 """
@@ -15,11 +15,15 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
+from seqdex_drake.observation_layout import BASE_SIZE, GOAL_SIZE
+from seqdex_drake.tasks.registry import REGISTRY
+from seqdex_drake.tasks.run_config import PRESETS, run_preset, run_residual, task_config
+
 
 @dataclasses.dataclass
 class ChainCheckpoints:
     """What :func:`LoadChainCheckpoints` found; pass ``stages`` and ``feasibility`` to
-    :func:`~seqdex_drake.systems.chain_controller.MakeChainController`."""
+    :func:`~seqdex_drake.controller.chain_controller.MakeChainController`."""
 
     tasks: list[str]
     """The chain's tasks, in order."""
@@ -68,8 +72,6 @@ def LoadChainCheckpoints(run_dir: str | os.PathLike, tasks: Sequence[str]) -> Ch
 
 def check_chain_task(task: str) -> str:
     """``task`` if it is a registered sub-task; ValueError listing the registered ones otherwise."""
-    from seqdex_drake.tasks.registry import REGISTRY
-
     if task not in REGISTRY:
         raise ValueError(f"unknown task {task!r} in the chain; registered tasks: {', '.join(REGISTRY)}")
     return task
@@ -77,9 +79,6 @@ def check_chain_task(task: str) -> str:
 
 def observation_sizes() -> dict[str, int]:
     """Each registered task's observation size (the base layout plus its goal or pixel part)."""
-    from seqdex_drake.observation_layout import BASE_SIZE, GOAL_SIZE
-    from seqdex_drake.tasks.registry import REGISTRY
-
     return {name: BASE_SIZE + (GOAL_SIZE if task.goal else 0) + (1 if task.pixels else 0)
             for name, (_, task) in REGISTRY.items()}
 
@@ -89,9 +88,6 @@ def run_dir_configs(run_dir: Path, tasks: list[str], checkpoints: list) -> list:
     scripted phases, progress input and residual base): the preset recorded by ``seqdex train`` in the
     ``config.json`` beside the checkpoint (a linked checkpoint: beside the file it links to), else the preset of
     the chain run's ``pipeline.json``, else the paper's; untrained stages take their preset the same way."""
-    from seqdex_drake.cli import task_config
-    from seqdex_drake.cli.rollout import PRESETS, run_preset, run_residual
-
     try:
         chain_preset = json.loads((run_dir / "pipeline.json").read_text())["config"]["preset"]
     except (OSError, ValueError, KeyError, TypeError):

@@ -352,7 +352,7 @@ def score(model: _FeasibilityModel, history, h: float):
 def walk_back(scores: np.ndarray) -> int:
     """The paper's stage estimate: the last stage i >= 1 with c^i > 1 (NaN never is), else 0 (restart).
 
-    Shared by the deployed switcher (``systems/switcher.py``) and the pipeline's evaluation rollouts
+    Shared by the deployed switcher (``controller/switcher.py``) and the pipeline's evaluation rollouts
     (``chaining/rollouts.py``), so both pick stages the same way."""
     for stage in range(len(scores) - 1, 0, -1):
         if scores[stage] > 1.0:

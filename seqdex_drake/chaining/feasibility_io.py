@@ -16,7 +16,8 @@ from typing import TYPE_CHECKING
 import torch
 
 from seqdex_drake.atomic import atomic_write
-from seqdex_drake.chaining.spec import ObservationSpec
+from seqdex_drake.chaining.feasibility import FeasibilityConfig, build_feasibility_model
+from seqdex_drake.observation_spec import ObservationSpec
 
 if TYPE_CHECKING:
     from seqdex_drake.chaining.feasibility import FeasibilityConfig
@@ -74,8 +75,6 @@ def load_feasibility(path: str | os.PathLike, expected_obs_spec: ObservationSpec
         ValueError: not a feasibility file, another format version, or a different observation spec or target
             task than expected (the message names both).
     """
-    from seqdex_drake.chaining.feasibility import FeasibilityConfig, build_feasibility_model
-
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"feasibility model {path} does not exist; train the feasibility function first")

@@ -30,12 +30,11 @@ import numpy as np
 from seqdex_drake.atomic import atomic_write
 from seqdex_drake.chaining.chain import ChainSpec
 from seqdex_drake.chaining.feasibility import FeasibilityConfig
+from seqdex_drake.tasks.run_config import PRESETS  # Task configs and PPO presets of the stages (PipelineConfig.preset).
 
 METHODS = ("seqdex", "seqdex_no_temporal", "policy_seq", "tstar", "vchain", "scratch", "curriculum")
 #: Methods that train one policy per stage and chain them (the others train one policy over the whole chain).
 CHAINED_METHODS = METHODS[:5]
-#: Task configs and PPO presets of the stages (see ``PipelineConfig.preset``).
-PRESETS = ("paper", "budget")
 #: Evaluation episodes are seeded from here on (training resets use the run seed and its step counts).
 EVAL_SEED = 100_000
 

@@ -14,6 +14,7 @@ import dataclasses
 from collections.abc import Callable, Sequence
 
 import numpy as np
+import torch
 
 from seqdex_drake.chaining.feasibility import pad_history, walk_back
 from seqdex_drake.env_state import SceneHandoffError
@@ -30,8 +31,6 @@ def handover_seed(seed: int, run: int) -> int:
 
 def deterministic_policy(ppo) -> Policy:
     """The mean action of a :class:`~seqdex_drake.rl.ppo.PPO` learner, clipped to [-1, 1], as a callable."""
-    import torch
-
     ppo.model.eval()
 
     def act(observation: np.ndarray) -> np.ndarray:

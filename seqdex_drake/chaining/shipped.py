@@ -6,7 +6,8 @@ also reads it, plus a manifest)::
     checkpoints/<chain>/manifest.json              format, version, chain, commit, per stage and per F: the file,
                                                    its SHA-256, observation spec, preset and task config, env steps,
                                                    wall-clock and core-hours of its training
-    checkpoints/<chain>/stages/<task>/best.pt      the policy (a full PPO checkpoint: normalizer inside)
+    checkpoints/<chain>/stages/<task>/best.pt      the policy (its PPO checkpoint for inference: normalizer inside,
+                                                   the optimizer's moments and the env state left out)
     checkpoints/<chain>/feasibility/<task>.pt      F predicting <task>'s return (with its threshold h)
 
 :func:`ship_chain` writes one from training runs; :func:`load_shipped_chain` checks one before anything is built:
@@ -22,6 +23,11 @@ import hashlib
 import json
 import shutil
 from pathlib import Path
+
+from seqdex_drake.atomic import atomic_write
+from seqdex_drake.rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from seqdex_drake.tasks.registry import default_config
+from seqdex_drake.tasks.run_config import config_dict, observation_spec, same_task_config, task_config
 
 FORMAT = "seqdex_drake.shipped_chain"
 VERSION = 1
@@ -79,28 +85,33 @@ def _sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
-def _stage_config(task: str, preset: str, residual: bool = True):
-    from seqdex_drake.cli import task_config
+def inference_checkpoint(state: dict) -> dict:
+    """A PPO checkpoint ``state`` as a shipped policy keeps it: without the optimizer's per-parameter state (Adam's
+    moments, twice the weights) and the saved env state, which only resuming training reads. The weights (the
+    critic's too: ``PPO.resume`` and ``load_policy`` rebuild the whole actor-critic), normalizer, config, counters
+    and RNG states stay, so both load it as before and act the same; training continued from it starts its
+    optimizer afresh."""
+    shipped = {key: value for key, value in state.items() if key != "env"}
+    shipped["optimizer"] = {**state["optimizer"], "state": {}}
+    return shipped
 
+
+def _stage_config(task: str, preset: str, residual: bool = True):
     return task_config(task, False, preset, residual=residual)
 
 
 def ship_chain(folder: str | Path, chain: str, stages: list[StageRecord], feasibility: dict[str, Path] | None = None,
                commit: str = "", extra: dict | None = None) -> Path:
-    """Copies the stages' checkpoints (and F files, by target task) into ``folder`` and writes its manifest
-    (``extra``: more top-level entries, e.g. the pipeline run it came from)."""
-    from seqdex_drake.atomic import atomic_write
-    from seqdex_drake.cli import config_dict
-    from seqdex_drake.rl.checkpoint import load_checkpoint
-
+    """Writes the stages' checkpoints for inference (:func:`inference_checkpoint`) and copies the F files (by
+    target task) into ``folder``, and writes its manifest (``extra``: more top-level entries, e.g. the pipeline run
+    it came from)."""
     folder = Path(folder)
     manifest = {"format": FORMAT, "version": VERSION, "chain": chain, "commit": commit, "stages": {},
                 "feasibility": {}, **(extra or {})}
     for stage in stages:
         state = load_checkpoint(stage.checkpoint, map_location="cpu")
         target = folder / "stages" / stage.task / "best.pt"
-        target.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(stage.checkpoint, target)
+        save_checkpoint(target, inference_checkpoint(state))
         manifest["stages"][stage.task] = {
             "file": str(target.relative_to(folder)), "sha256": _sha256(target), "obs_spec": state.get("obs_spec"),
             "preset": stage.preset, "residual": stage.residual,
@@ -129,10 +140,6 @@ def load_shipped_chain(folder: str | Path, chain: str, tasks: list[str], observa
                        ) -> ShippedChain:
     """Checks the shipped folder for ``chain`` (stages ``tasks``; ``observation_sizes`` per task) and returns its
     files and stage configs. A stage the manifest does not list runs untrained (``missing``)."""
-    from seqdex_drake.cli import config_dict, same_task_config
-    from seqdex_drake.rl.checkpoint import CheckpointError, load_checkpoint
-    from seqdex_drake.tasks.registry import default_config, observation_spec
-
     folder = Path(folder)
     path = folder / MANIFEST
     try:

@@ -1,11 +1,10 @@
 """Where a pipeline's envs come from: the process's pool of in-process stage envs, and the env classes the
 pipeline is handed by its caller.
 
-The chaining code does not import ``envs/``: stage envs are built through the task registry
-(:func:`~seqdex_drake.tasks.registry.make_env`), and the classes that need the env package itself (the worker-
-process vector env, the in-process vector env, the whole-chain env of the single-policy baselines) come in as an
-:class:`EnvKit`, which the caller builds (``seqdex pipeline`` passes
-:func:`seqdex_drake.envs.factory.pipeline_env_kit`). Both :mod:`~seqdex_drake.chaining.bidirectional` and
+Stage envs are built with :func:`~seqdex_drake.envs.subtask_env.make_env`; the vector envs of the PPO phases
+and the whole-chain env of the single-policy baselines come from an :class:`EnvKit` (:func:`default_env_kit`:
+this package's env classes; a caller may hand in others with the same signatures). Both
+:mod:`~seqdex_drake.chaining.bidirectional` and
 :mod:`~seqdex_drake.chaining.single_policy` use this module, so neither imports the other in a circle.
 """
 
@@ -13,7 +12,10 @@ import dataclasses
 from collections.abc import Callable
 from typing import Any
 
-from seqdex_drake.tasks.registry import make_env
+from seqdex_drake.envs.chain_env import ChainEnv
+from seqdex_drake.envs.serial import SerialVectorEnv
+from seqdex_drake.envs.subtask_env import make_env
+from seqdex_drake.envs.vector import ProcessVectorEnv
 
 #: In-process envs, built once per (task, config, slot) and reused by every phase and pipeline of this process
 #: (building a station diagram costs seconds; a reset with a seed makes a reused env as good as new).
@@ -42,3 +44,11 @@ class EnvKit:
     chain_env: Callable[..., Any]
     """``(stages, start_stage=, envs=)`` -> one env running the stages back to back
     (:class:`~seqdex_drake.envs.chain_env.ChainEnv`), for RL-scratch and Curriculum RL."""
+
+
+def default_env_kit() -> EnvKit:
+    """This package's :class:`EnvKit`: worker-process vector envs
+    (:class:`~seqdex_drake.envs.vector.ProcessVectorEnv`), in-process ones
+    (:class:`~seqdex_drake.envs.serial.SerialVectorEnv`) and the whole-chain env
+    (:class:`~seqdex_drake.envs.chain_env.ChainEnv`)."""
+    return EnvKit(process_vector_env=ProcessVectorEnv, serial_vector_env=SerialVectorEnv, chain_env=ChainEnv)

@@ -25,8 +25,11 @@ from pathlib import Path
 import numpy as np
 
 from seqdex_drake.atomic import atomic_write
-from seqdex_drake.chaining.spec import ObservationSpec
+from seqdex_drake.observation_spec import ObservationSpec
 
+#: H of the buffers ``seqdex collect`` writes: the observations stored per entry (the feasibility function's input
+#: length, the paper's 10).
+HISTORY = 10
 FORMAT = "seqdex_drake.chaining.terminal_buffer"
 VERSION = 1
 _STATE_PREFIX = "state__"

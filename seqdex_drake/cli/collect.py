@@ -15,28 +15,22 @@ front). ``--resume`` appends to the existing ``--out`` buffer instead of replaci
 from pathlib import Path
 
 import numpy as np
+import torch
 
-from seqdex_drake.cli import (
-    NEXT_TASK,
-    CliError,
-    check_creatable,
-    check_seed,
-    observation_spec,
-    task_config,
-    with_objects,
-)
+from seqdex_drake.chaining.feasibility import pad_history
+from seqdex_drake.chaining.terminal_buffer import HISTORY, TerminalBuffer
+from seqdex_drake.cli import NEXT_TASK, CliError, check_creatable, check_seed, with_objects
+from seqdex_drake.envs.subtask_env import make_env
+from seqdex_drake.rl.checkpoint import CheckpointError
+from seqdex_drake.rl.ppo import PPO
+from seqdex_drake.tasks.run_config import observation_spec, run_preset, run_residual, task_config
 
-#: H, the observations stored per buffer entry (the feasibility function's input length).
-HISTORY = 10
 #: Episodes rolled out under ``--test`` when ``--episodes`` is not given.
 TEST_EPISODES = 2
 
 
 def _load_policy(path: Path):
     """The PPO learner of checkpoint ``path``; :class:`CliError` if it is missing or unreadable."""
-    from seqdex_drake.rl.checkpoint import CheckpointError
-    from seqdex_drake.rl.ppo import PPO
-
     if not path.is_file():
         raise CliError(f"checkpoint {path} does not exist; train the policy first (seqdex train --task ...) or "
                        f"pass --checkpoint RUN_DIR/last.pt")
@@ -48,8 +42,6 @@ def _load_policy(path: Path):
 
 def _open_buffer(args, out: Path, target: str, scenario: str, spec):
     """A new buffer, or with ``--resume`` the one at ``out`` (checked to hold this chain step's states)."""
-    from seqdex_drake.chaining.terminal_buffer import TerminalBuffer
-
     if not args.resume:
         return TerminalBuffer(args.task, target, scenario, spec, HISTORY)
     try:
@@ -67,8 +59,6 @@ def rollout(env, ppo, seed: int) -> tuple[np.ndarray, float, bool]:
 
     The env is left in the episode's final state.
     """
-    import torch
-
     low, high = env.action_space.low, env.action_space.high
     observation, info = env.reset(seed=seed)
     observations, episode_return = [observation], 0.0
@@ -84,9 +74,6 @@ def rollout(env, ppo, seed: int) -> tuple[np.ndarray, float, bool]:
 
 def run(args) -> int:
     """Runs ``seqdex collect`` with the parsed ``args``; returns the exit code."""
-    from seqdex_drake.chaining.feasibility import pad_history
-    from seqdex_drake.tasks.registry import make_env
-
     target = NEXT_TASK.get(args.task)
     if target is None:
         raise CliError(f"{args.task} is the last sub-task of its chain: no later task starts from its terminal "
@@ -100,7 +87,6 @@ def run(args) -> int:
     check_seed(args.seed)
     check_creatable(out, "--out")  # Before the rollouts, not after them.
     ppo = _load_policy(checkpoint)
-    from seqdex_drake.cli.rollout import run_preset, run_residual
 
     # The variant the policy was trained on.
     preset = args.preset or run_preset(checkpoint)

@@ -20,6 +20,10 @@ object (unless ``--episodes``), 6-tick stages, 1 s episodes, small untrained net
 from pathlib import Path
 
 from seqdex_drake.cli import CliError
+from seqdex_drake.evaluation.experiments import EvalConfig, Evaluation, history_available, progress_bar, total_episodes
+from seqdex_drake.evaluation.parallel import EvaluationWorkerError
+from seqdex_drake.evaluation.runner import ChainRunError
+from seqdex_drake.modeling.catalog import object_keys
 
 TEST_STAGE_STEPS = 6
 TEST_SECONDS = 1.0
@@ -49,17 +53,6 @@ def add_parser(commands) -> None:
 
 
 def run(args) -> int:
-    from seqdex_drake.evaluation.experiments import (
-        EvalConfig,
-        Evaluation,
-        history_available,
-        progress_bar,
-        total_episodes,
-    )
-    from seqdex_drake.evaluation.parallel import EvaluationWorkerError
-    from seqdex_drake.evaluation.runner import ChainRunError
-    from seqdex_drake.modeling.catalog import object_keys
-
     run_dir = Path(args.run_dir)
     if not run_dir.is_dir():
         raise CliError(f"run directory {run_dir} does not exist; train the chain first or pass --run-dir")

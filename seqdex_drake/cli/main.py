@@ -10,6 +10,7 @@ Subcommands (most take ``--run-dir``, ``--seed``, ``--resume`` and ``--test``)::
     seqdex evaluate --task building_blocks|tool_positioning --run-dir RUN
     seqdex rollout --task lower --checkpoint RUN/last.pt --episodes N [--out results.json]
     seqdex ship --run-dir RUN [--out checkpoints/<chain>] [--force]
+    seqdex simulate [--task building_blocks|tool_positioning] [--checkpoints DIR] [--headless]
 
 ``--test`` runs a tiny budget (episodes of a few steps, small networks, one PPO update, two collected
 episodes) for smoke tests and CI. Bad input exits with status 2 and a one-line message (no traceback); see
@@ -20,8 +21,15 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from seqdex_drake.cli import OBJECTS_HELP, CliError
-from seqdex_drake.cli.rollout import PRESETS
+from seqdex_drake.cli import OBJECTS_HELP, CliError, collect, evaluate, pipeline, rollout, ship, simulate, train
+from seqdex_drake.envs.vector import WorkerError
+from seqdex_drake.tasks.registry import task_names
+from seqdex_drake.tasks.run_config import PRESETS
+
+#: The function that runs each subcommand.
+RUNS = {"train": train.run, "collect": collect.run, "evaluate": evaluate.run, "rollout": rollout.run, "ship": ship.run,
+        "simulate": simulate.run, "pipeline": pipeline.run_pipeline, "feasibility": pipeline.run_feasibility,
+        "finetune": pipeline.run_finetune}
 
 
 def _common(parser: argparse.ArgumentParser, tasks: list[str], resume_help: str) -> None:
@@ -36,8 +44,6 @@ def _common(parser: argparse.ArgumentParser, tasks: list[str], resume_help: str)
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``seqdex`` argument parser with its subcommands."""
-    from seqdex_drake.tasks.registry import task_names
-
     tasks = task_names()
     parser = argparse.ArgumentParser(prog="seqdex", description="Sequential Dexterity on Drake: train sub-task "
                                      "policies and chain them.")
@@ -84,12 +90,11 @@ def build_parser() -> argparse.ArgumentParser:
                               "config.json beside the checkpoint, else paper); e.g. budget for a shipped stage "
                               "checkpoint (checkpoints/<family>/stages/<task>/best.pt)")
 
-    from seqdex_drake.cli import evaluate, pipeline, rollout, ship
-
     pipeline.add_parsers(commands)
     evaluate.add_parser(commands)
     rollout.add_parser(commands)
     ship.add_parser(commands)
+    simulate.add_parser(commands)
     return parser
 
 
@@ -100,24 +105,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     prints ``seqdex <command>: error: <message>`` to stderr and returns its code; a failed env worker
     (:class:`~seqdex_drake.envs.vector.WorkerError`, with the worker's traceback) returns 1.
     """
-    from seqdex_drake.envs.vector import WorkerError
-
     args = build_parser().parse_args(argv)
-    if args.command == "train":
-        from seqdex_drake.cli.train import run
-    elif args.command == "collect":
-        from seqdex_drake.cli.collect import run
-    elif args.command == "evaluate":
-        from seqdex_drake.cli.evaluate import run
-    elif args.command == "rollout":
-        from seqdex_drake.cli.rollout import run
-    elif args.command == "ship":
-        from seqdex_drake.cli.ship import run
-    else:
-        from seqdex_drake.cli import pipeline
-
-        run = {"pipeline": pipeline.run_pipeline, "feasibility": pipeline.run_feasibility,
-               "finetune": pipeline.run_finetune}[args.command]
+    run = RUNS[args.command]
     try:
         return run(args)
     except CliError as error:

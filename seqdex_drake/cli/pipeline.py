@@ -23,7 +23,15 @@ import dataclasses
 import sys
 from pathlib import Path
 
+from seqdex_drake.chaining.bidirectional import Pipeline
+from seqdex_drake.chaining.chain import ChainError, ChainNames, LoadChain
+from seqdex_drake.chaining.feasibility import FeasibilityConfig
+from seqdex_drake.chaining.pipeline import METHODS, PipelineConfig, PipelineError
+from seqdex_drake.chaining.stage_envs import default_env_kit
 from seqdex_drake.cli import CliError
+from seqdex_drake.scenario import LoadScenario, ScenarioError
+from seqdex_drake.tasks.registry import task_names
+from seqdex_drake.tasks.run_config import PRESETS
 
 METHOD_HELP = ("seqdex (ours), seqdex_no_temporal (F without history), policy_seq (forward only), tstar "
                "(discriminator reward), vchain (next policy's critic as F), scratch (one PPO over the chain), "
@@ -32,10 +40,6 @@ METHOD_HELP = ("seqdex (ours), seqdex_no_temporal (F without history), policy_se
 
 def add_parsers(commands) -> None:
     """Adds ``pipeline``, ``feasibility`` and ``finetune`` to the argparse subparsers object ``commands``."""
-    from seqdex_drake.chaining.chain import ChainNames
-    from seqdex_drake.chaining.feasibility import FeasibilityConfig
-    from seqdex_drake.chaining.pipeline import METHODS, PRESETS
-
     pipeline = commands.add_parser("pipeline", help="run a whole chaining method (forward, backward, evaluation)",
                                    description="Forward initialization, backward fine-tuning and evaluation of a "
                                    "chain, or a baseline on the same budget. " + METHOD_HELP)
@@ -114,12 +118,6 @@ def _summary(results: dict) -> str:
 
 
 def run_pipeline(args) -> int:
-    from seqdex_drake.chaining.bidirectional import Pipeline
-    from seqdex_drake.chaining.chain import ChainError, LoadChain
-    from seqdex_drake.chaining.pipeline import PipelineConfig, PipelineError
-    from seqdex_drake.envs.factory import pipeline_env_kit
-    from seqdex_drake.tasks.registry import task_names
-
     overrides = {key: value for key, value in (
         ("stage_steps", args.stage_steps), ("finetune_steps", args.finetune_steps), ("iterations", args.iterations),
         ("transition_episodes", args.transition_episodes), ("eval_episodes", args.eval_episodes),
@@ -146,7 +144,7 @@ def run_pipeline(args) -> int:
         config = make(chain=args.chain, method=args.method, seed=args.seed, **overrides)
         run_dir = Path(args.run_dir or f"runs/{args.chain}_{args.method}_s{args.seed}")
         pipeline = Pipeline(chain, config, run_dir, resume=args.resume, progress=sys.stderr.isatty(), log=_log,
-                            env_kit=pipeline_env_kit())
+                            env_kit=default_env_kit())
         results = pipeline.execute()
     except (ChainError, PipelineError, FileNotFoundError) as error:
         raise CliError(str(error)) from error
@@ -180,13 +178,8 @@ def _init_checkpoints(values: list[str]) -> dict[str, str]:
 
 
 def _open(args):
-    from seqdex_drake.chaining.bidirectional import Pipeline
-    from seqdex_drake.chaining.chain import ChainError
-    from seqdex_drake.chaining.pipeline import PipelineError
-    from seqdex_drake.envs.factory import pipeline_env_kit
-
     try:
-        return Pipeline.open(args.run_dir, progress=sys.stderr.isatty(), log=_log, env_kit=pipeline_env_kit())
+        return Pipeline.open(args.run_dir, progress=sys.stderr.isatty(), log=_log, env_kit=default_env_kit())
     except (ChainError, PipelineError) as error:
         raise CliError(str(error)) from error
 
@@ -194,8 +187,6 @@ def _open(args):
 def _scenes(values: list[str], stages: list[str], task: str, recollect: bool) -> dict[str, str]:
     """``--scene TASK=SCENARIO`` flags as a dict; :class:`CliError` for a malformed one, a stage that does not run
     in the collection (after ``task``, or not in the chain), a scenario that does not load, or no ``--recollect``."""
-    from seqdex_drake.scenario import LoadScenario, ScenarioError
-
     if values and not recollect:
         raise CliError("--scene needs --recollect: it changes where the transitions are collected")
     scenes = _task_pairs("--scene", values, "TASK=SCENARIO", "orient=building_blocks/search")
@@ -210,8 +201,6 @@ def _scenes(values: list[str], stages: list[str], task: str, recollect: bool) ->
 
 
 def run_feasibility(args) -> int:
-    from seqdex_drake.chaining.feasibility import FeasibilityConfig
-
     pipeline = _open(args)
     if args.task not in pipeline.stages:
         raise CliError(f"{args.task} is not a stage of the run's chain ({' -> '.join(pipeline.stages)})")

@@ -22,33 +22,32 @@ be writable before any rollout).
 
 import dataclasses
 import json
-import math
 import os
 import sys
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
-from seqdex_drake.cli import (
-    OBJECTS_HELP,
-    CliError,
-    check_creatable,
-    check_seed,
-    observation_spec,
-    task_config,
-    with_objects,
-)
+from seqdex_drake.atomic import atomic_write
+from seqdex_drake.cli import OBJECTS_HELP, CliError, check_creatable, check_seed, with_objects
+from seqdex_drake.cli.train import load_initial_states
+from seqdex_drake.env_state import EnvState
+from seqdex_drake.envs.subtask_env import make_env
+from seqdex_drake.evaluation.subtask_episodes import run_episode, summarize
+from seqdex_drake.rl.checkpoint import CheckpointError
+from seqdex_drake.rl.policy_loading import load_policy
+from seqdex_drake.scenario import LoadScenario, ScenarioError
+from seqdex_drake.tasks.base import ResetError
+from seqdex_drake.tasks.registry import task_names
+from seqdex_drake.tasks.run_config import PRESETS, observation_spec, run_preset, run_residual, task_config
 
 #: Episodes rolled out when ``--episodes`` is not given (with and without ``--test``).
 DEFAULT_EPISODES, TEST_EPISODES = 100, 2
-#: The task variants ``seqdex train --preset`` trains on (``task_config``'s ``preset``).
-PRESETS = ("budget", "paper")
 
 
 def add_parser(commands) -> None:
     """Adds the ``rollout`` subcommand to the argparse subparsers object ``commands``."""
-    from seqdex_drake.tasks.registry import task_names
-
     tasks = task_names()
     parser = commands.add_parser("rollout", help="success rate and mean return of a trained sub-task policy",
                                  description="Deterministic rollouts of a trained sub-task policy in its own env "
@@ -80,73 +79,8 @@ def add_parser(commands) -> None:
     parser.add_argument("--test", action="store_true", help="a tiny budget for smoke tests and CI")
 
 
-def run_preset(checkpoint: Path) -> str:
-    """The preset recorded in the run record beside ``checkpoint`` (``config.json`` of ``seqdex train``):
-    ``paper`` for runs recorded before presets and for a checkpoint without a readable record."""
-    try:
-        record = json.loads((checkpoint.parent / "config.json").read_text())
-        preset = record.get("preset", "paper")
-    except (OSError, ValueError, AttributeError):
-        return "paper"
-    return preset if preset in PRESETS else "paper"
-
-
-def run_residual(checkpoint: Path) -> bool:
-    """Whether the run beside ``checkpoint`` trained on its task config's residual base: every run except those
-    trained with demonstrations (``seqdex train --demos`` trains whole actions; see ``cli.task_config``)."""
-    try:
-        return json.loads((checkpoint.parent / "config.json").read_text()).get("demos") is None
-    except (OSError, ValueError, AttributeError):
-        return True
-
-
-def run_episode(env, policy, seed: int, initial_state=None) -> dict:
-    """One episode from ``env.reset(seed=seed)`` (from ``initial_state`` if given) with ``policy``: its seed,
-    return, length and outcome."""
-    options = None if initial_state is None else {"initial_state": initial_state}
-    observation, info = env.reset(seed=seed, options=options)
-    target = getattr(env.unwrapped, "target_object", None)
-    episode_return, length = 0.0, 0
-    while True:
-        observation, reward, terminated, truncated, info = env.step(policy(observation))
-        episode_return += float(reward)
-        length += 1
-        if terminated or truncated:
-            return {"seed": seed, "object": target, "return": episode_return, "length": length,
-                    "success": bool(info.get("success", False)), "terminated": bool(terminated),
-                    "simulator_error": bool(info.get("simulator_error", False))}
-
-
-def summarize(records: list[dict]) -> dict:
-    """Success rate, mean / std of the return and mean length of the episode ``records``, and episodes and
-    successes per object kind (:func:`object_kind` of each episode's target)."""
-    returns = [record["return"] for record in records]
-    mean = sum(returns) / len(returns)
-    per_object: dict[str, dict] = {}
-    for record in records:
-        counts = per_object.setdefault(object_kind(record.get("object")), {"episodes": 0, "successes": 0})
-        counts["episodes"] += 1
-        counts["successes"] += int(record["success"])
-    return {"success_rate": sum(record["success"] for record in records) / len(records), "mean_return": mean,
-            "std_return": math.sqrt(sum((value - mean) ** 2 for value in returns) / len(returns)),
-            "mean_length": sum(record["length"] for record in records) / len(records),
-            "per_object": dict(sorted(per_object.items()))}
-
-
-def object_kind(name: str | None) -> str:
-    """The kind of a target object: ``"block 6"`` for ``block_6_3`` (its type), a tool's own name, ``"-"`` for
-    none (a task without a target object)."""
-    if not name:
-        return "-"
-    parts = name.split("_")
-    return f"block {parts[1]}" if parts[0] == "block" and len(parts) >= 2 else name
-
-
 def _load(args, checkpoint: Path):
     """The deterministic policy of ``checkpoint``; :class:`CliError` if it is missing or unreadable."""
-    from seqdex_drake.rl.checkpoint import CheckpointError
-    from seqdex_drake.rl.policy_loading import load_policy
-
     try:
         return load_policy(checkpoint, deterministic=True)
     except FileNotFoundError as error:
@@ -171,8 +105,6 @@ def _hand_offs(args) -> list | None:
     """The successful hand-off states of ``--initial-states`` (as ``EnvState``), or None without it."""
     if args.initial_states is None:
         return None
-    from seqdex_drake.cli.train import load_initial_states
-    from seqdex_drake.env_state import EnvState
 
     buffer = load_initial_states(args.initial_states, args.task)
     return [buffer.state(i, EnvState) for i in range(len(buffer)) if buffer.successes[i]]
@@ -182,7 +114,6 @@ def _scene(args) -> str | None:
     """``--scene``, checked: a scenario that loads, given with ``--initial-states``; None without it."""
     if args.scene is None:
         return None
-    from seqdex_drake.scenario import LoadScenario, ScenarioError
 
     if args.initial_states is None:
         raise CliError(f"--scene {args.scene} needs --initial-states: the {args.task} task's own resets place their "
@@ -200,12 +131,6 @@ def _on_scene(config, scene: str | None):
 
 def run(args) -> int:
     """Runs ``seqdex rollout`` with the parsed ``args``; returns the exit code."""
-    from tqdm import tqdm
-
-    from seqdex_drake.atomic import atomic_write
-    from seqdex_drake.tasks.base import ResetError
-    from seqdex_drake.tasks.registry import make_env
-
     episodes = args.episodes if args.episodes is not None else (TEST_EPISODES if args.test else DEFAULT_EPISODES)
     if episodes < 1:
         raise CliError(f"--episodes must be >= 1, got {episodes}")

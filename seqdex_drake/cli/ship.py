@@ -1,10 +1,11 @@
 """``seqdex ship``: a finished pipeline run's policies and feasibility functions, as a shipped checkpoint folder.
 
-    seqdex ship --run-dir training/tool_positioning_seqdex [--out checkpoints/tool_positioning] [--force]
+    seqdex ship --run-dir runs/tool_positioning_seqdex [--out checkpoints/tool_positioning] [--force]
 
 Reads the run of ``seqdex pipeline`` in ``--run-dir`` (``pipeline.json``, ``stages/<task>/last.pt``,
 ``feasibility/<task>.pt``) and writes the folder of :mod:`seqdex_drake.chaining.shipped` (default
-``checkpoints/<chain>``): each stage's policy with its normalizer, observation spec, preset and task config, the
+``checkpoints/<chain>``): each stage's policy for inference (its checkpoint without the optimizer's moments,
+``chaining.shipped.inference_checkpoint``) with its normalizer, observation spec, preset and task config, the
 env steps of its checkpoint and the wall-clock and core-hours of its training (the run it was initialized from,
 ``--init``, plus the pipeline's PPO phases of that stage), each F with its threshold h, the pipeline's config and
 wall-clock, and the commit that made them. The folder is written next to its destination and moved in whole, so
@@ -17,7 +18,10 @@ import subprocess
 import tempfile
 from pathlib import Path
 
+from seqdex_drake.chaining.chain_files import observation_sizes
+from seqdex_drake.chaining.shipped import ShippedChainError, StageRecord, load_shipped_chain, ship_chain
 from seqdex_drake.cli import CliError
+from seqdex_drake.evaluation.learning_curves import read_curve
 
 #: Cores a pipeline's PPO phases and ``seqdex train`` runs use on the machine this project trains on.
 TRAINING_CORES = 2
@@ -48,8 +52,6 @@ def _commit() -> str:
 
 def _initial_training_seconds(checkpoint: str) -> float:
     """Wall-clock of the ``seqdex train`` run that wrote ``checkpoint`` (its learning curve's last point)."""
-    from seqdex_drake.evaluation.learning_curves import read_curve
-
     try:
         return float(read_curve(Path(checkpoint).parent)["wall_clock_s"][-1])
     except ValueError as error:
@@ -58,8 +60,6 @@ def _initial_training_seconds(checkpoint: str) -> float:
 
 def stage_records(run_dir: Path, record: dict, cores: int) -> list:
     """One :class:`~seqdex_drake.chaining.shipped.StageRecord` per stage of the pipeline run in ``run_dir``."""
-    from seqdex_drake.chaining.shipped import StageRecord
-
     config, stages = record["config"], record["stages"]
     init = config.get("init_checkpoints") or {}
     records = []
@@ -79,9 +79,6 @@ def stage_records(run_dir: Path, record: dict, cores: int) -> list:
 
 
 def run(args) -> int:
-    from seqdex_drake.chaining.chain_files import observation_sizes
-    from seqdex_drake.chaining.shipped import ShippedChainError, load_shipped_chain, ship_chain
-
     run_dir = Path(args.run_dir)
     record_path = run_dir / "pipeline.json"
     if not record_path.is_file():

@@ -29,17 +29,22 @@ from pathlib import Path
 
 import numpy as np
 
+from seqdex_drake.atomic import atomic_write
+from seqdex_drake.chaining.terminal_buffer import TerminalBuffer
 from seqdex_drake.chaining.wrappers import InitialStateVectorEnv  # noqa: F401 (also imported from here by tests)
-from seqdex_drake.cli import (
-    PREVIOUS_TASK,
-    CliError,
-    check_creatable,
-    check_seed,
-    config_dict,
-    observation_spec,
-    same_task_config,
-    task_config,
-)
+from seqdex_drake.cli import PREVIOUS_TASK, CliError, check_creatable, check_seed
+from seqdex_drake.cli.run_lock import RunLock
+from seqdex_drake.env_state import SceneHandoffError
+from seqdex_drake.envs.scene_handoff import check_carried
+from seqdex_drake.envs.subtask_env import EnvState
+from seqdex_drake.envs.vector import ProcessVectorEnv, WorkerError
+from seqdex_drake.rl.checkpoint import CheckpointError
+from seqdex_drake.rl.config import PPOConfig
+from seqdex_drake.rl.demonstrations import Demonstrations, behaviour_clone
+from seqdex_drake.rl.ppo import PPO
+from seqdex_drake.rl.stop_signals import StopSignals
+from seqdex_drake.scenario import DumpScenario, ScenarioError
+from seqdex_drake.tasks.run_config import config_dict, observation_spec, same_task_config, task_config
 
 #: Network widths under ``--test`` (the paper's 1024-1024-512 MLPs are needlessly slow for a smoke run).
 TEST_HIDDEN_SIZES = (64, 64)
@@ -54,8 +59,6 @@ TEST_HORIZON = 8
 
 def load_initial_states(path: str, task: str):
     """The terminal buffer at ``path`` for starting ``task`` episodes; :class:`CliError` if it cannot be used."""
-    from seqdex_drake.chaining.terminal_buffer import TerminalBuffer
-
     source = PREVIOUS_TASK.get(task)
     if source is None:
         raise CliError(f"{task} is the first sub-task of its chain; it starts from the scenario, not from a "
@@ -72,8 +75,6 @@ def load_initial_states(path: str, task: str):
 
 def load_demonstrations(path: str, task: str):
     """The demonstrations at ``path`` for training ``task``; :class:`CliError` if they cannot be used."""
-    from seqdex_drake.rl.demonstrations import Demonstrations
-
     try:
         return Demonstrations.load(path, expected_task=task)
     except ValueError as error:
@@ -100,10 +101,6 @@ def _saved_demos(run_dir: Path):
 def _check_state_layout(env, buffer, scenario: str) -> None:
     """Raises :class:`CliError` if the buffer's states cannot start the env's episodes: saved on another scene
     (another plant size) without the fields a hand-off across scenes carries (``envs/scene_handoff.py``)."""
-    from seqdex_drake.env_state import SceneHandoffError
-    from seqdex_drake.envs.scene_handoff import check_carried
-    from seqdex_drake.envs.subtask_env import EnvState
-
     ours = env.get_states()[0]
     theirs = buffer.state(int(np.flatnonzero(buffer.successes)[0]), EnvState)
     if np.shape(ours.plant_positions) == np.shape(theirs.plant_positions):
@@ -116,8 +113,6 @@ def _check_state_layout(env, buffer, scenario: str) -> None:
 
 def _new_run(args, run_dir: Path, config) -> tuple:
     """The PPO config and saved run record of a fresh run; refuses to overwrite an existing run."""
-    from seqdex_drake.rl.config import PPOConfig
-
     if (run_dir / "last.pt").exists():
         raise CliError(f"{run_dir} already holds a run (last.pt); continue it with --resume or pick another "
                        f"--run-dir")
@@ -178,10 +173,6 @@ def _saved_run(args, run_dir: Path, config) -> dict:
 
 def _resume_learner(args, run_dir: Path, record: dict) -> tuple:
     """(learner from last.pt or None, PPO config) of a resumed run; without last.pt the saved config's."""
-    from seqdex_drake.rl.checkpoint import CheckpointError
-    from seqdex_drake.rl.config import PPOConfig
-    from seqdex_drake.rl.ppo import PPO
-
     ppo = None
     if (run_dir / "last.pt").is_file():
         try:
@@ -209,9 +200,6 @@ def _resume_learner(args, run_dir: Path, record: dict) -> tuple:
 
 def _write_record(run_dir: Path, record: dict, config) -> None:
     """Writes config.json and scenario.yaml (atomically: a crash leaves the old file or the new one)."""
-    from seqdex_drake.atomic import atomic_write
-    from seqdex_drake.scenario import DumpScenario, ScenarioError
-
     try:
         scenario = DumpScenario(config.load_scenario())
     except ScenarioError as error:
@@ -252,9 +240,6 @@ def _stopped(args, run_dir: Path, stop, ppo, trained: bool) -> int:
 def run(args) -> int:
     """Runs ``seqdex train`` with the parsed ``args``; returns the exit code. The flags are checked before anything
     is created; the run directory is then locked for the run's life, and SIGINT / SIGTERM stop it cleanly."""
-    from seqdex_drake.cli.run_lock import RunLock
-    from seqdex_drake.rl.stop_signals import StopSignals
-
     run_dir = Path(args.run_dir or f"runs/{args.task}")
     _check_args(args, run_dir)
     with RunLock(run_dir, create=not args.resume), StopSignals() as stop:
@@ -263,11 +248,6 @@ def run(args) -> int:
 
 def _train(args, run_dir: Path, stop) -> int:
     """``seqdex train`` in the locked ``run_dir``; ``stop`` records a SIGINT / SIGTERM received meanwhile."""
-    from seqdex_drake.envs.subtask_env import EnvState
-    from seqdex_drake.envs.vector import ProcessVectorEnv, WorkerError
-    from seqdex_drake.rl.demonstrations import behaviour_clone
-    from seqdex_drake.rl.ppo import PPO
-
     if args.resume:  # The run's own preset (runs from before presets used the paper's).
         args.preset = _saved_preset(run_dir, args.preset)
     # A run with demonstrations trains whole actions (DAPG): no residual base, whatever the preset has.

@@ -18,8 +18,8 @@ import gymnasium as gym
 import numpy as np
 
 from seqdex_drake.env_state import check_handoff
+from seqdex_drake.envs.subtask_env import make_env
 from seqdex_drake.tasks.base import TaskConfig
-from seqdex_drake.tasks.registry import make_env
 
 
 class ChainEnv(gym.Env):

@@ -5,11 +5,10 @@
 envs each) or the Ray backend (:class:`~seqdex_drake.envs.ray_vector.RayVectorEnv`, one Ray actor per env, local
 or on a cluster via ``address=``). Both have the same interface, seeding and autoreset, so the same seed gives
 the same rollouts.
-
-``pipeline_env_kit()``: the env classes a chaining :class:`~seqdex_drake.chaining.bidirectional.Pipeline` builds its
-PPO envs from (``chaining/`` does not import ``envs/``; its caller hands them in).
 """
 
+from seqdex_drake.envs.ray_vector import RayVectorEnv
+from seqdex_drake.envs.vector import ProcessVectorEnv
 from seqdex_drake.tasks.base import TaskConfig
 
 #: The backend names :func:`make_vector_env` accepts.
@@ -30,24 +29,8 @@ def make_vector_env(task: str, num_envs: int, seed: int = 0, config: TaskConfig 
             (process); ``address``, ``num_cpus``, ``cpus_per_worker`` (ray).
     """
     if backend == "process":
-        from seqdex_drake.envs.vector import ProcessVectorEnv
-
         return ProcessVectorEnv(task, num_envs, seed=seed, config=config, **kwargs)
     if backend == "ray":
-        from seqdex_drake.envs.ray_vector import RayVectorEnv
-
         return RayVectorEnv(task, num_envs, seed=seed, config=config, **kwargs)
     raise ValueError(f"unknown vector env backend {backend!r}; choose one of {', '.join(BACKENDS)}")
 
-
-def pipeline_env_kit():
-    """This package's :class:`~seqdex_drake.chaining.stage_envs.EnvKit`: worker-process vector envs
-    (:class:`~seqdex_drake.envs.vector.ProcessVectorEnv`), in-process ones
-    (:class:`~seqdex_drake.envs.serial.SerialVectorEnv`) and the whole-chain env
-    (:class:`~seqdex_drake.envs.chain_env.ChainEnv`), for ``Pipeline(..., env_kit=pipeline_env_kit())``."""
-    from seqdex_drake.chaining.stage_envs import EnvKit
-    from seqdex_drake.envs.chain_env import ChainEnv
-    from seqdex_drake.envs.serial import SerialVectorEnv
-    from seqdex_drake.envs.vector import ProcessVectorEnv
-
-    return EnvKit(process_vector_env=ProcessVectorEnv, serial_vector_env=SerialVectorEnv, chain_env=ChainEnv)

@@ -37,7 +37,7 @@ all but the object scale (a geometry jump in contact would be an impulse); the s
 Isaac Gym counts ``gym.simulate`` calls (one 1/60 s policy step there): 1000 of them are about 8300 plant
 steps here; set the field accordingly to match the release's wall-clock period.
 
-The configuration, :class:`RandomizationConfig`, lives in ``envs/randomization_config.py`` (importable from
+The configuration, :class:`RandomizationConfig`, lives in ``tasks/randomization_config.py`` (importable from
 here too).
 """
 
@@ -54,7 +54,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.plant import CoulombFriction
 from pydrake.multibody.tree import PdControllerGains, SpatialInertia, UnitInertia
 
-from seqdex_drake.envs.randomization_config import RandomizationConfig
+from seqdex_drake.tasks.randomization_config import RandomizationConfig
 
 
 @dataclasses.dataclass

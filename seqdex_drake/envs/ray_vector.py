@@ -26,7 +26,7 @@ __all__ = ["RayVectorEnv", "WorkerError", "import_ray", "init_ray"]
 def import_ray():
     """The ``ray`` module, or an ImportError saying how to install it."""
     try:
-        import ray
+        import ray  # Optional: the distributed extra; the error says how to install it.
     except ImportError as error:
         raise ImportError("the Ray vector env backend needs ray, which is not installed: install the distributed "
                           "extra (pip install \"seqdex_drake[distributed]\") or use backend='process'") from error

@@ -2,8 +2,8 @@
 
 Every sub-task of :mod:`seqdex_drake.tasks.registry` gets the id ``seqdex/<CamelCaseName>-v0``
 (:data:`GYM_IDS`): ``seqdex/Search-v0``, ``Orient``, ``Grasp``, ``Insert``, ``ToolGrasp``, ``ToolReorient`` and
-the hand-over chain's ``Reach`` and ``Lower``. Registration is lazy (an entry point string): nothing is built,
-and no Drake system is imported, until ``gym.make``.
+the hand-over chain's ``Reach`` and ``Lower``. Registration is lazy (an entry point string): nothing is built
+until ``gym.make``.
 
 The spec's ``max_episode_steps`` is the task's default ``episode_length``; the env also truncates itself at its
 config's ``episode_length``, and :class:`~seqdex_drake.envs.wrappers.EpisodeLengthSync` (the spec's additional
@@ -15,6 +15,13 @@ wrapper) keeps the two equal. Keywords of ``gym.make`` (see :func:`make_subtask_
     gym.make("seqdex/Grasp-v0", config=my_config, max_episode_steps=my_config.episode_length)
     gym.make("seqdex/ToolGrasp-v0", preset="budget")             # the variant seqdex train --preset budget uses
 
+Every task with a small-budget variant (``seqdex train --preset budget``) also gets ``seqdex/<Name>Budget-v0``
+(:data:`BUDGET_GYM_IDS`): the budget config, with the action space reduced to the dims its policy sends (a
+residual on a scripted base pins the hand's 16 dims: ``low == high`` there), by
+:class:`~seqdex_drake.envs.wrappers.FreeActionsWrapper`::
+
+    gym.make("seqdex/GraspBudget-v0")                             # Box(3,): the wrist residual
+
 Wrist-only tasks (reach, lower) have 16 fixed action dims (``low == high``); wrap with
 :class:`~seqdex_drake.envs.wrappers.FreeActionsWrapper` to expose only the free ones.
 """
@@ -24,15 +31,19 @@ import dataclasses
 import gymnasium as gym
 from gymnasium.envs.registration import WrapperSpec
 
-from seqdex_drake.tasks.registry import REGISTRY, default_config
+from seqdex_drake.envs.wrappers import FreeActionsWrapper
+from seqdex_drake.tasks.base import TaskConfig
+from seqdex_drake.tasks.registry import REGISTRY, budget_config, default_config
+from seqdex_drake.tasks.run_config import PRESETS  # The task variants of the ``preset`` keyword.
 
 #: The id prefix of every sub-task env.
 NAMESPACE = "seqdex"
 #: The version suffix of the ids (bump it when an env's observation, action or reward changes meaning).
 VERSION = 0
-#: The task variants of the ``preset`` keyword (as ``seqdex train --preset``).
-PRESETS = ("paper", "budget")
 _ENTRY_POINT = "seqdex_drake.envs.registration:make_subtask_env"
+_BUDGET_ENTRY_POINT = "seqdex_drake.envs.registration:make_budget_env"
+#: The budget ids' own wrapper (their entry point applies it: the env checker then sees the reduced space).
+_FREE = WrapperSpec(name="FreeActionsWrapper", entry_point="seqdex_drake.envs.wrappers:FreeActionsWrapper", kwargs={})
 _SYNC = WrapperSpec(name="EpisodeLengthSync", entry_point="seqdex_drake.envs.wrappers:EpisodeLengthSync", kwargs={})
 
 
@@ -45,6 +56,9 @@ def gym_id(task: str) -> str:
 
 #: Sub-task name -> gymnasium id, for every registered sub-task.
 GYM_IDS = {task: gym_id(task) for task in REGISTRY}
+#: Sub-task name -> gymnasium id of its small-budget variant, for every sub-task that has one.
+BUDGET_GYM_IDS = {task: gym_id(task).replace(f"-v{VERSION}", f"Budget-v{VERSION}") for task in REGISTRY
+                  if budget_config(task) != default_config(task)}
 
 
 def make_subtask_env(task: str, config=None, preset: str | None = None, meshcat=None, **overrides):
@@ -64,8 +78,8 @@ def make_subtask_env(task: str, config=None, preset: str | None = None, meshcat=
         ValueError: ``config`` is not a TaskConfig of ``task``, both ``config`` and ``preset`` are given, the
             preset is unknown, or an override names no TaskConfig field.
     """
-    from seqdex_drake.tasks.base import TaskConfig
-    from seqdex_drake.tasks.registry import budget_config, make_env
+    # Start-up time: ``import seqdex_drake`` registers the ids without loading the env's systems.
+    from seqdex_drake.envs.subtask_env import make_env
 
     if preset is not None:
         if config is not None:
@@ -90,10 +104,25 @@ def make_subtask_env(task: str, config=None, preset: str | None = None, meshcat=
     return make_env(task, dataclasses.replace(config, **overrides), meshcat=meshcat)
 
 
+def make_budget_env(task: str, meshcat=None, **overrides):
+    """The entry point of the ``seqdex/*Budget-v0`` ids: sub-task ``task``'s small-budget variant (``overrides``:
+    TaskConfig fields, as for :func:`make_subtask_env`) with only the action dims its policy sends
+    (:class:`~seqdex_drake.envs.wrappers.FreeActionsWrapper`)."""
+    if task not in BUDGET_GYM_IDS:
+        raise ValueError(f"sub-task {task!r} has no small-budget variant; its id is {gym_id(task)}")
+    return FreeActionsWrapper(make_subtask_env(task, preset="budget", meshcat=meshcat, **overrides))
+
+
 def register_envs() -> list[str]:
-    """Registers every sub-task's id with gymnasium (ids already registered are left alone); returns the ids."""
+    """Registers every sub-task's id and every budget variant's with gymnasium (ids already registered are left
+    alone); returns the ids."""
     for task, env_id in GYM_IDS.items():
         if env_id not in gym.registry:
             gym.register(env_id, entry_point=_ENTRY_POINT, max_episode_steps=default_config(task).episode_length,
                          kwargs={"task": task}, additional_wrappers=(_SYNC,))
-    return list(GYM_IDS.values())
+    for task, env_id in BUDGET_GYM_IDS.items():
+        if env_id not in gym.registry:
+            gym.register(env_id, entry_point=_BUDGET_ENTRY_POINT,
+                         max_episode_steps=budget_config(task).episode_length, kwargs={"task": task},
+                         additional_wrappers=(_FREE, _SYNC))
+    return [*GYM_IDS.values(), *BUDGET_GYM_IDS.values()]

@@ -31,11 +31,12 @@ from seqdex_drake.observation_layout import (
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, ALLEGRO_Q_MAX, ALLEGRO_Q_MIN, p_PalmHc_Palm, p_PalmPc_Palm
 from seqdex_drake.robots.arm_ik import PalmIK
 from seqdex_drake.scene.objects import SceneObjects
+from seqdex_drake.sensors.observations import ObservationAssembler, ObservationTarget
+from seqdex_drake.sensors.target_pixels import TargetPixelCounter
 from seqdex_drake.station import MakeControllerPlant, MakeStation, RefreshSampledOutputs
-from seqdex_drake.systems.observations import ObservationAssembler, ObservationTarget
-from seqdex_drake.systems.target_pixels import TargetPixelCounter
 from seqdex_drake.tasks.base import Task, TaskConfig
 from seqdex_drake.tasks.phases import apply_phases
+from seqdex_drake.tasks.registry import make_task
 from seqdex_drake.tasks.residual import apply_residual, make_base
 
 COMMAND_SIZE = 14 + 32 + ACTION_SIZE
@@ -400,3 +401,9 @@ class SubtaskEnv(gym.Env):
             randomizer.on_step()  # DR hook: re-applies object masses, re-draws every N plant steps
             observation = randomizer.perturb_observation(observation)  # DR hook: observation noise
         return observation, float(sum(terms.values())), terminated, truncated, info
+
+
+def make_env(name: str, config: TaskConfig | None = None, meshcat=None) -> SubtaskEnv:
+    """A :class:`SubtaskEnv` for sub-task ``name`` with ``config`` (default: its ``default_config()``), shown in
+    ``meshcat`` if given."""
+    return SubtaskEnv(make_task(name, config), meshcat=meshcat)

@@ -34,6 +34,7 @@ from collections.abc import Sequence
 import numpy as np
 from gymnasium.vector.utils import batch_space
 
+from seqdex_drake.envs.subtask_env import make_env
 from seqdex_drake.tasks.base import TaskConfig
 from seqdex_drake.tasks.registry import default_config
 
@@ -60,8 +61,6 @@ class EnvWorker:
     """
 
     def __init__(self, task_name: str, config: TaskConfig | None):
-        from seqdex_drake.tasks.registry import make_env
-
         self.env = make_env(task_name, config)
         self.episode_return, self.episode_length = 0.0, 0
 

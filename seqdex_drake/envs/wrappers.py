@@ -13,6 +13,8 @@ Both import only gymnasium and numpy at module level (no Drake), so registering 
 import gymnasium as gym
 import numpy as np
 
+from seqdex_drake.tasks.registry import default_config
+
 
 class FreeActionsWrapper(gym.ActionWrapper, gym.utils.RecordConstructorArgs):
     """The wrapped env's ``Box`` action space reduced to its free dims (those with ``low < high``).
@@ -113,7 +115,6 @@ class EpisodeLengthSync(gym.Wrapper, gym.utils.RecordConstructorArgs):
         limit = int(time_limit._max_episode_steps)
         if config.episode_length == limit:
             return
-        from seqdex_drake.tasks.registry import default_config
 
         if config.episode_length != default_config(config.name).episode_length:
             raise ValueError(f"the task config's episode_length {config.episode_length} differs from the time "

@@ -1,5 +1,5 @@
 """How the chain runner (``evaluation/runner.py``) sets up each task family's chain: where the approach runs,
-carries and times out (``systems/chain_controller.ChainParams``)."""
+carries and times out (``controller/chain_controller.ChainParams``)."""
 
 import numpy as np
 

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from seqdex_drake.chaining.chain import LoadChain
 from seqdex_drake.evaluation.episodes import (  # noqa: F401
     SCATTER_STAGE,
     handover_notes,
@@ -24,6 +25,7 @@ from seqdex_drake.evaluation.episodes import (  # noqa: F401
     run_episode,
     sample_goal,
 )
+from seqdex_drake.evaluation.parallel import WorkerPool
 from seqdex_drake.evaluation.plots import write_pose_scatter
 from seqdex_drake.evaluation.runner import ChainRunner
 from seqdex_drake.evaluation.tables import seed_rates, write_table
@@ -121,8 +123,6 @@ class Evaluation:
         if self.progress is not None and len(tags) > len(pending):
             self.progress.update(len(tags) - len(pending))
         if pending and self.config.workers > 1 and len({tag["seed"] for tag in pending}) > 1:
-            from seqdex_drake.evaluation.parallel import WorkerPool
-
             points = {}
 
             def on_episode(record: dict, rpy: list, scores: list) -> None:
@@ -218,8 +218,6 @@ class Evaluation:
 
 
 def ChainTasks(family: str) -> list[str]:
-    from seqdex_drake.chaining.chain import LoadChain
-
     return list(LoadChain(family).stages)
 
 
@@ -260,7 +258,7 @@ class CounterBar:
 
 def progress_bar(total: int, desc: str):
     try:
-        from tqdm import tqdm
+        from tqdm import tqdm  # Optional here: a plain counter without it.
     except ImportError:
         return CounterBar(total, desc)
     return tqdm(total=total, desc=desc, unit="episode", file=sys.stderr)

@@ -21,6 +21,7 @@ COLUMNS = {"charts/success_rate": "success_rate", "charts/episode_return": "epis
 def read_curve(run_dir: str | Path) -> dict[str, np.ndarray]:
     """The run's curve: ``env_steps``, ``wall_clock_s`` and the :data:`COLUMNS` (NaN where not logged), sorted
     by env step. Raises ValueError if ``run_dir`` holds no event file with any of them."""
+    # Start-up time: tensorboard loads slowly, and only this reader needs it.
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     run_dir = Path(run_dir)
@@ -59,10 +60,10 @@ def read_curve(run_dir: str | Path) -> dict[str, np.ndarray]:
 
 def write_curve(run_dir: str | Path, out: str | Path, title: str = "") -> tuple[Path, Path]:
     """Writes ``out.csv`` and ``out.png`` (success rate and return against env steps and wall-clock hours)."""
-    import matplotlib
+    import matplotlib  # Start-up time: matplotlib only for the figures, off-screen (Agg).
 
     matplotlib.use("Agg")
-    from matplotlib import pyplot
+    from matplotlib import pyplot  # After use("Agg"), so no display is needed.
 
     curve = read_curve(run_dir)
     out = Path(out)

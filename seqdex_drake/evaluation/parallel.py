@@ -19,7 +19,8 @@ import signal
 import traceback
 from collections.abc import Callable
 
-from seqdex_drake.evaluation.runner import ChainRunError
+from seqdex_drake.evaluation.episodes import run_config, run_episode
+from seqdex_drake.evaluation.runner import ChainRunError, ChainRunner
 
 #: Seconds between the parent's checks that the workers are alive while it waits for their episodes.
 POLL_SECONDS = 0.5
@@ -50,9 +51,6 @@ def _worker(index: int, config, tasks, messages) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C: the parent stops the workers.
     parent = mp.parent_process()
     try:
-        from seqdex_drake.evaluation.episodes import run_config, run_episode
-        from seqdex_drake.evaluation.runner import ChainRunner
-
         while (task := _next_task(tasks, parent)) is not None:
             overrides, jobs, scatter = task
             runner = ChainRunner(run_config(config, **overrides))

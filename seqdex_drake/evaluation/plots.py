@@ -21,10 +21,10 @@ def write_pose_scatter(path: Path, rpy: np.ndarray, scores: np.ndarray, title: s
         title: the figure title (e.g. which transition).
         note: shown under the title when there is nothing to plot (why).
     """
-    import matplotlib
+    import matplotlib  # Start-up time: matplotlib only for the figures, off-screen (Agg).
 
     matplotlib.use("Agg")
-    from matplotlib import pyplot
+    from matplotlib import pyplot  # After use("Agg"), so no display is needed.
 
     path.parent.mkdir(parents=True, exist_ok=True)
     rpy = np.degrees(np.asarray(rpy, dtype=float).reshape(-1, 3))

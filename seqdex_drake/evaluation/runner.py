@@ -23,6 +23,16 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
 from seqdex_drake.chaining.chain import LoadChain
+from seqdex_drake.chaining.chain_files import LoadChainCheckpoints, observation_sizes, run_dir_configs
+from seqdex_drake.chaining.shipped import ShippedChainError, load_shipped_chain
+from seqdex_drake.controller.chain_controller import (
+    ChainParams,
+    ConnectChainController,
+    GetChainPolicies,
+    MakeChainController,
+    SetChainTarget,
+)
+from seqdex_drake.controller.switcher import SwitcherParams
 from seqdex_drake.evaluation.chain_settings import (
     APPROACH_STAGES,
     APPROACH_TIMEOUT,
@@ -34,6 +44,7 @@ from seqdex_drake.evaluation.chain_settings import (
     REENGAGE,
     TIMEOUT_FAMILIES,
 )
+from seqdex_drake.evaluation.display import ChainStatusDisplay
 from seqdex_drake.harness import ResolvePackageUrl
 from seqdex_drake.modeling.blocks import BLOCK_SPECS
 from seqdex_drake.modeling.tools import TOOL_SPECS
@@ -115,15 +126,6 @@ class ChainRunner:
     """
 
     def __init__(self, config: RunConfig, meshcat=None):
-        from seqdex_drake.chaining.chain_files import LoadChainCheckpoints, observation_sizes, run_dir_configs
-        from seqdex_drake.systems.chain_controller import (
-            ChainParams,
-            ConnectChainController,
-            GetChainPolicies,
-            MakeChainController,
-        )
-        from seqdex_drake.systems.switcher import SwitcherParams
-
         if config.family not in SCENARIOS:
             raise ChainRunError(f"unknown task '{config.family}'; valid: {', '.join(SCENARIOS)}")
         self.config = config
@@ -132,8 +134,6 @@ class ChainRunner:
         stages, feasibility, self.missing = [(task, None) for task in self.tasks], None, []
         stage_configs, self.shipped = None, None
         if config.run_dir is not None and (Path(config.run_dir) / "manifest.json").exists():
-            from seqdex_drake.chaining.shipped import ShippedChainError, load_shipped_chain
-
             try:  # Shipped checkpoints: checked (files whole, specs, task configs) before anything is built.
                 self.shipped = load_shipped_chain(config.run_dir, config.family, self.tasks, observation_sizes())
             except ShippedChainError as error:
@@ -174,8 +174,6 @@ class ChainRunner:
         self.display = None
         self._completed = builder.AddNamedSystem("completed", ConstantVectorSource(np.zeros(1)))
         if meshcat is not None:
-            from seqdex_drake.evaluation.display import ChainStatusDisplay
-
             self.display = builder.AddNamedSystem("chain_status", ChainStatusDisplay(meshcat, self.tasks))
             builder.Connect(self.controller.GetOutputPort("active_stage"), self.display.GetInputPort("active_stage"))
             builder.Connect(self.controller.GetOutputPort("feasibility_scores"),
@@ -248,8 +246,6 @@ class ChainRunner:
             plant.SetVelocities(context, instance, np.zeros(plant.num_velocities(instance)))
 
     def _start(self, name: str, goal: np.ndarray, reset_robot: bool, approach_offset=None, arm_q=None) -> None:
-        from seqdex_drake.systems.chain_controller import SetChainTarget
-
         if reset_robot:
             self._reset_robot(arm_q)
         self.target, self.goal = name, np.asarray(goal, dtype=float)

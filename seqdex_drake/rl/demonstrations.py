@@ -1,6 +1,6 @@
 """Demonstration-augmented PPO (DAPG; Rajeswaran et al. 2018): demonstrations, behaviour cloning, the BC term.
 
-A scripted controller (e.g. :class:`~seqdex_drake.scene.tool_grasp_script.ScriptedToolGrasp`) is rolled out in
+A scripted controller (e.g. :class:`~seqdex_drake.tasks.scripted.tool_grasp_script.ScriptedToolGrasp`) is rolled out in
 the sub-task's own env; the episodes that the env's success test passes are kept as demonstrations
 (:func:`collect_demonstrations`). The actor is warm-started by behaviour cloning on them, with the critic fitted
 to their discounted returns (:func:`behaviour_clone`), and PPO then adds ``lambda0 * lambda1^k`` times the
@@ -115,7 +115,7 @@ class Demonstrations:
                    header.get("source", ""), int(header.get("attempts", 0)))
 
 
-#: ``controller(env, step) -> action``, after ``controller.reset(env)`` (see ``scene/tool_grasp_script.py``).
+#: ``controller(env, step) -> action``, after ``controller.reset(env)`` (see ``tasks/scripted/tool_grasp_script.py``).
 Controller = Callable
 
 

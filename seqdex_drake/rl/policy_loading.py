@@ -22,9 +22,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from seqdex_drake.observation_spec import ObservationSpec
 from seqdex_drake.rl.checkpoint import CheckpointError, load_checkpoint
 from seqdex_drake.rl.config import PPOConfig
 from seqdex_drake.rl.networks import ActorCritic
+from seqdex_drake.tasks.registry import default_config, task_names
+from seqdex_drake.tasks.run_config import observation_spec
 
 #: What a checkpoint must hold for a policy to be rebuilt from it.
 POLICY_KEYS = ("model", "config", "dims")
@@ -35,8 +38,6 @@ _MODEL_FIELDS = ("actor_hidden_sizes", "critic_hidden_sizes", "activation", "ini
 
 def _task_of(spec) -> str | None:
     """The registered sub-task whose observation spec is ``spec`` (an ObservationSpec), or None."""
-    from seqdex_drake.tasks.registry import observation_spec, task_names
-
     return next((name for name in task_names() if observation_spec(name, spec.dim) == spec), None)
 
 
@@ -73,7 +74,7 @@ class Policy:
         path: the checkpoint file.
         task: the registered sub-task whose observation spec the checkpoint records (None if it records none or
             one no registered task has).
-        obs_spec: the recorded :class:`~seqdex_drake.chaining.spec.ObservationSpec`, or None.
+        obs_spec: the recorded :class:`~seqdex_drake.observation_spec.ObservationSpec`, or None.
         obs_dim, action_dim: observation and action sizes.
         action_low, action_high: the action bounds (float32 arrays), or None if the checkpoint has none.
         deterministic: the mean action (True) or a sample.
@@ -150,8 +151,6 @@ def load_policy(path: str | os.PathLike, deterministic: bool = True, seed: int |
         CheckpointError: ``path`` is truncated, corrupt, not a seqdex_drake checkpoint, or its weights do not fit.
         ValueError: ``task`` is not a registered sub-task, or the checkpoint is another task's policy.
     """
-    from seqdex_drake.chaining.spec import ObservationSpec
-
     path = Path(path)
     if not path.is_file():
         siblings = sorted(p.name for p in path.parent.glob("*.pt")) if path.parent.is_dir() else []
@@ -167,8 +166,6 @@ def load_policy(path: str | os.PathLike, deterministic: bool = True, seed: int |
                               f"checkpoint written by seqdex train") from error
     policy = Policy(path, _build_model(path, state), bounds, obs_spec, deterministic, seed)
     if task is not None:
-        from seqdex_drake.tasks.registry import default_config, observation_spec
-
         default_config(task)  # ValueError listing the valid tasks for an unknown name.
         policy.check_observation_spec(observation_spec(task, policy.obs_dim), f"sub-task {task!r}")
     if policy.action_low is not None and not (np.isfinite(policy.action_low).all()

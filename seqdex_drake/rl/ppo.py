@@ -48,6 +48,7 @@ from seqdex_drake.rl.losses import (
 )
 from seqdex_drake.rl.networks import ActorCritic
 from seqdex_drake.rl.seeding import seed_everything
+from seqdex_drake.rl.training_loop import run_training
 
 #: ``callback(ppo, metrics)`` after every update; returning ``False`` stops training.
 Callback = Callable[["PPO", dict[str, float]], bool | None]
@@ -320,8 +321,6 @@ class PPO:
         processes, which exit), ``last.pt`` holds the learner as the last update left it, without an env state (a
         resume starts fresh episodes).
         """
-        from seqdex_drake.rl.training_loop import run_training
-
         return run_training(self, vec_env, run_dir, total_steps, callbacks, progress, stop)
 
     # ------------------------------------------------------------------------------------- checkpoints

@@ -15,8 +15,19 @@ microseconds, the same products as Drake's to ~1e-15 (``tests/test_tree_kinemati
 The table holds the plant's *default* frame offsets: a plant whose frame offsets are parameters changed in a
 context is not followed (domain randomization scales masses, inertias, friction, joint limits, stiffness and
 damping, and object geometry, not frame offsets).
+
+Without the C extension. The extension is optional at install: where no C compiler or no Python headers were
+there, the install goes on without it, and :class:`TreeKinematics` answers the same calls from Drake's own
+kinematics (:class:`~seqdex_drake.robots.drake_kinematics.DrakeKinematics`: the same results to ~1e-13, several
+Drake calls per step instead of one compiled call, so env steps are slower). The first such
+:class:`TreeKinematics` of a process warns once (:class:`SlowKinematicsWarning`, naming the fix: install gcc
+and python3-dev, then rerun ``bash scripts/venv.sh``); child processes started after it stay quiet.
+Set ``SEQDEX_NO_C_EXTENSION=1`` to use Drake's kinematics although the extension is built (to compare the two;
+no warning then); ``TreeKinematics(..., compiled=False)`` does the same for one instance.
 """
 
+import os
+import warnings
 from collections.abc import Sequence
 
 import numpy as np
@@ -24,16 +35,48 @@ from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import Frame, PrismaticJoint, QuaternionFloatingJoint, RevoluteJoint, WeldJoint
 
+from seqdex_drake.robots import drake_kinematics
+
 try:
     from seqdex_drake.robots import _kinematics
-except ImportError as error:  # pragma: no cover - an install without the built extension
-    raise ImportError(
-        "seqdex_drake's compiled kinematics (seqdex_drake/robots/_kinematics.c) is not built: reinstall the "
-        "package with a C compiler available (`pip install -e .`, or `bash scripts/venv.sh python -c 1`); "
-        f"original error: {error}") from error
+except ImportError as error:  # An install without a C compiler or Python's headers: Drake's kinematics instead.
+    _kinematics, _IMPORT_ERROR = None, error
+else:
+    _IMPORT_ERROR = None
 
+FORCE_DRAKE_VARIABLE = "SEQDEX_NO_C_EXTENSION"
+"""Set to 1 to use Drake's kinematics although the C extension is built (no warning)."""
+_WARNED_VARIABLE = "SEQDEX_KINEMATICS_WARNED"  # Set once warned: child processes (env workers) stay quiet.
 _FIXED, _REVOLUTE, _PRISMATIC, _FLOATING = 0.0, 1.0, 2.0, 3.0
 _IDENTITY = RigidTransform()
+
+
+class SlowKinematicsWarning(RuntimeWarning):
+    """The C extension is not built: TreeKinematics runs on Drake's kinematics (the same results, slower)."""
+
+
+def compiled_available() -> bool:
+    """Whether the C extension ``seqdex_drake.robots._kinematics`` was built and imported."""
+    return _kinematics is not None
+
+
+def _use_compiled(compiled: bool | None) -> bool:
+    """Resolves :class:`TreeKinematics`' ``compiled`` argument; warns once per process tree when the extension
+    is wanted (the default) but not built."""
+    if compiled is not None:
+        if compiled and _kinematics is None:
+            raise ImportError(f"TreeKinematics(compiled=True): the C extension is not built ({_IMPORT_ERROR})")
+        return compiled
+    if os.environ.get(FORCE_DRAKE_VARIABLE, "") not in ("", "0"):
+        return False
+    if _kinematics is None and not os.environ.get(_WARNED_VARIABLE):
+        os.environ[_WARNED_VARIABLE] = "1"
+        warnings.warn(
+            f"seqdex_drake's compiled kinematics (seqdex_drake/robots/_kinematics.c) is not built ({_IMPORT_ERROR}); "
+            "using Drake's kinematics instead: the same results, slower env steps. To build it, install a C "
+            "compiler and Python's headers (apt-get install gcc python3-dev) and rerun `bash scripts/venv.sh`.",
+            SlowKinematicsWarning, stacklevel=3)
+    return _kinematics is not None
 
 
 def _pose_entries(X: RigidTransform) -> list[float]:
@@ -49,13 +92,16 @@ class TreeKinematics:
         plant: a finalized MultibodyPlant (double).
         frames: the frames to evaluate.
         X_FQ: optional per-frame offsets: evaluate the frame Q fixed in each frame F at ``X_FQ[i]`` instead.
+        compiled: True: the C extension; False: Drake's kinematics; None (default): the C extension when it is
+            built and ``SEQDEX_NO_C_EXTENSION`` is not set, else Drake's (see the module docstring).
 
     Raises:
         ValueError: a joint on a frame's path to the world is not revolute, prismatic, weld or quaternion
             floating (an RPY floating joint, a ball joint, ...), or the tree is too large (256 links).
     """
 
-    def __init__(self, plant: MultibodyPlant, frames: Sequence[Frame], X_FQ: Sequence[RigidTransform] | None = None):
+    def __init__(self, plant: MultibodyPlant, frames: Sequence[Frame], X_FQ: Sequence[RigidTransform] | None = None,
+                 compiled: bool | None = None):
         if not plant.is_finalized():
             raise ValueError("TreeKinematics: finalize the plant first")
         if X_FQ is not None and len(X_FQ) != len(frames):
@@ -94,6 +140,8 @@ class TreeKinematics:
         self.frames = np.array(entries, dtype=np.float64).tobytes()
         self.size = len(frames)
         self.num_positions, self.num_velocities = plant.num_positions(), plant.num_velocities()
+        self.compiled = _use_compiled(compiled)  # The calls run in the C extension, else on Drake's kinematics.
+        self._drake = None if self.compiled else drake_kinematics.DrakeKinematics(plant, frames, X_FQ)
 
     @staticmethod
     def _link(parent: float, joint) -> list[float]:
@@ -118,11 +166,15 @@ class TreeKinematics:
         """Per frame, 13 floats: position (3), quaternion [w, x, y, z] with w >= 0 (4), the frame origin's
         translational velocity (3) and the frame's angular velocity (3), all in the world, from the plant's
         state ``x`` = [q, v] (a list of floats is fastest; an array works)."""
+        if self._drake is not None:
+            return self._drake.states(x)
         return _kinematics.frame_states(self.model, self.frames, x)
 
     def poses(self, q) -> list[float]:
         """Per frame, 12 floats: X_WF's rotation row by row (9), then its translation (3), from the plant's
         positions ``q`` (or its whole state [q, v])."""
+        if self._drake is not None:
+            return self._drake.poses(q)
         return _kinematics.frame_poses(self.model, self.frames, q)
 
     def pose(self, q, i: int = 0) -> RigidTransform:
@@ -139,10 +191,16 @@ class TreeKinematics:
         positions must all be revolute or prismatic joints on Q's path (e.g. the controller plant)."""
         if self.size != 1:
             raise ValueError("TreeKinematics.dls_step: build the kinematics with a single frame")
+        if self._drake is not None:
+            return self._drake.dls_step(q, p_WQ_target, R_WQ_target, orientation_weight, damping, max_step, q_min,
+                                        q_max)
         return _kinematics.dls_step(self.model, self.frames, q, p_WQ_target, R_WQ_target, orientation_weight,
                                     damping, max_step, q_min, q_max)
 
 
-def rotation_vector(R) -> list[float]:
-    """angle * axis of a rotation matrix (its log map, for any angle up to a half turn), an array or rows."""
+def rotation_vector(R, compiled: bool | None = None) -> list[float]:
+    """angle * axis of a rotation matrix (its log map, for any angle up to a half turn), an array or rows;
+    ``compiled`` as :class:`TreeKinematics`'."""
+    if not _use_compiled(compiled):
+        return drake_kinematics.rotation_vector(R)
     return _kinematics.rotation_vector(np.asarray(R, dtype=float).ravel().tolist())

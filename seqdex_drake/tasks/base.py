@@ -9,8 +9,10 @@ import dataclasses
 
 import numpy as np
 
-from seqdex_drake.envs.randomization_config import RandomizationConfig
+from seqdex_drake.scenario import LoadScenario
 from seqdex_drake.tasks.phases import ScriptedPhases
+from seqdex_drake.tasks.randomization_config import RandomizationConfig
+from seqdex_drake.tasks.residual import RESIDUAL_BASES
 from seqdex_drake.tasks.rewards import RewardWeights
 
 
@@ -71,8 +73,6 @@ class TaskConfig:
 
     def load_scenario(self):
         """The station scenario this sub-task runs in: ``scenario`` with ``scenario_overrides`` applied."""
-        from seqdex_drake.scenario import LoadScenario
-
         return LoadScenario(self.scenario, scenario_text=self.scenario_overrides or "{}")
 
     def __post_init__(self):
@@ -101,7 +101,6 @@ class TaskConfig:
         require(len(self.object_types) > 0 and all(integer(t) for t in self.object_types), "object_types",
                 "a non-empty list of integer object variants")
         require(all(finite(t) for t in self.success_threshold), "success_threshold", "a list of finite numbers")
-        from seqdex_drake.tasks.residual import RESIDUAL_BASES
 
         require(self.residual == "" or self.residual in RESIDUAL_BASES, "residual",
                 f"'' or one of {', '.join(RESIDUAL_BASES)}")

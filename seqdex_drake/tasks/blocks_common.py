@@ -14,6 +14,7 @@ from seqdex_drake.modeling.blocks import BLOCK_SPECS, TOTAL_HEIGHT
 from seqdex_drake.observation_layout import rotation_matrix
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q
 from seqdex_drake.scene.piles import BOX_CENTER, BOX_INNER_HALF
+from seqdex_drake.tasks.scripted.block_orient_script import roll_angle
 
 BOX_MARGIN = 0.10
 #: How far (m) the open hand's straight fingertips reach beyond the hand centre along +x, with a 1 cm clearance.
@@ -64,21 +65,21 @@ def sample_box_xy(rng: np.random.Generator) -> np.ndarray:
 #: ``COVER_RISE`` (m) higher is covered (centres, not origins: :func:`centre_heights`).
 COVER_RADIUS, COVER_RISE = 0.05, 0.01
 #: A block whose centre lies less than this above the box floor rests on the floor, not on other blocks [m]. In
-#: the pile Orient stood 1 of 49 such blocks against 9 of 49 resting on others (``scripts/pile_starts.py``), and
+#: the pile Orient stood 1 of 49 such blocks against 9 of 49 resting on others (``experiments/pile_starts.py``), and
 #: Grasp, the block stood upright in place, lifted none of 6 on the floor against 4 of 9 on others
-#: (``scripts/grasp_in_pile.py``): the fingers need room below the block's neighbours.
+#: (``experiments/grasp_in_pile.py``): the fingers need room below the block's neighbours.
 ON_FLOOR = 0.035
 #: A block tilted at most this far from upright [deg] stands up by Orient's side stroke alone (a quarter roll or
 #: less); one tilted further must first be tipped from its back onto a side. In the pile Orient stood 9 of 47 of
 #: the former against 1 of 51 of the latter (resting on others and uncovered: 7 of 17 against 1 of 25;
-#: ``scripts/pile_starts.py``).
+#: ``experiments/pile_starts.py``).
 QUARTER_ROLL = 100.0
 
 
 #: Orient's roll needs room on the side its top moves to: a neighbour whose centre lies within ``ROLL_ROOM`` (m)
 #: of the block's centre along that direction, beside its length (within ``ROLL_BESIDE`` of its centre along the
 #: long axis), and no more than ``ROLL_BELOW`` lower, stops the stroking fingertip or the roll (traced in the pile).
-#: Over Orient's 98 starts in the pile that need a roll (``scripts/pile_starts.py``) it did not predict success.
+#: Over Orient's 98 starts in the pile that need a roll (``experiments/pile_starts.py``) it did not predict success.
 ROLL_ROOM, ROLL_BESIDE, ROLL_BELOW = 0.10, 0.07, 0.01
 #: The jaws of Grasp's pinch close along world x; a block whose long axis lies within 45 deg of x is pinched by
 #: its ends and tilts in the lift (``results/building_blocks.md``), and Insert's goals lie along y.
@@ -89,8 +90,6 @@ def roll_blocked(q_blocks: np.ndarray, i: int) -> bool:
     """Whether every way Orient's roll would stand block ``i`` of ``q_blocks`` up is taken by a neighbour
     (``ROLL_ROOM``): a block on a long side stands up one way only (its top moving across its long axis, away from
     its open bottom), an upside-down one either way; an upright block needs no roll (False)."""
-    from seqdex_drake.scene.block_orient_script import roll_angle  # The script's own notion of the roll.
-
     R_WB = rotation_matrix(q_blocks[i, :4])
     roll = roll_angle(R_WB)
     across = np.cross(R_WB[:, 0], [0.0, 0.0, 1.0])

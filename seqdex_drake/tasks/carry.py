@@ -2,7 +2,7 @@
 and the carry an Insert env applies to a hand-off from Grasp.
 
 The whole chain's approach carries the block Grasp holds to ``CARRY_HEIGHT`` over its goal and turns the hand until
-the block has its goal's orientation (``systems/chain_parts.py`` ``ApproachTarget``; ``evaluation/runner.py``
+the block has its goal's orientation (``controller/chain_parts.py`` ``ApproachTarget``; ``evaluation/runner.py``
 ``CARRY_STAGES``, ``CARRY_GOAL_SYMMETRY``). :func:`carry_to_goal` leaves a hand-off from Grasp where that carry
 leaves the block, so that forward initialization trains and measures Insert from there.
 """

@@ -7,7 +7,7 @@ it in total (release). Reward: the paper's Grasp formula (see ``tasks/rewards.py
 :func:`budget_config` is the variant that fits a small training budget (``../shared/TRAINING.md``), as tool
 Grasp's: the release's scripted phases (the policy's wrist for 75 steps, then a scripted lift to the end), the
 episode's progress in the observation (160 entries: the phases are timed), a lift term in the reward, and a
-residual policy (``tasks/residual.py``) on the scripted pickup of ``scene/block_grasp_script.py`` (30 / 30
+residual policy (``tasks/residual.py``) on the scripted pickup of ``tasks/scripted/block_grasp_script.py`` (30 / 30
 alone on seeds 0-29): the policy learns a wrist correction (3 dims; the
 hand's 16 are pinned to the script's).
 """

@@ -3,7 +3,7 @@ buffer is given.
 
 The paper's point (Sec. 4.1) is that random in-hand states are not physically stable, so Insert starts from
 Grasp's successful terminal states (forward initialization, ``options={"initial_state": ...}``). Standalone,
-an Insert reset instead *simulates* a scripted tripod pickup (``seqdex_drake.scene.grasping``): the block
+an Insert reset instead *simulates* a scripted tripod pickup (``seqdex_drake.tasks.scripted.grasping``): the block
 stands on the table, the hand descends, squeezes with force-balanced targets and lifts it, a physically valid
 grasp in about 140 control steps. Tool Reorient closes the hand into a fist around the hammer's handle and
 lets the hammer settle in it (:func:`synthesized_tool_grasp`, a power grasp, its yaw across the palm drawn per
@@ -18,7 +18,7 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 from seqdex_drake.modeling.blocks import BLOCK_SPECS
 from seqdex_drake.observation_layout import floats
 from seqdex_drake.robots.allegro import ALLEGRO_Q_MAX, ALLEGRO_Q_MIN, PALM_BODY, unscale_limits_to_action
-from seqdex_drake.scene.grasping import ExecuteGrasp, PlanTripodPickup, RampTargets, SolveTripodGrasp
+from seqdex_drake.tasks.scripted.grasping import ExecuteGrasp, PlanTripodPickup, RampTargets, SolveTripodGrasp
 
 #: Where Insert's scripted pickup takes the block from: the free table area beside the baseplate.
 PICKUP_XY = np.array([0.22, 0.12])

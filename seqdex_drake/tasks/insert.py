@@ -9,7 +9,8 @@ paper's Insert formula. Success (release): within 0.02 m and 0.2 rad of the goal
 the goal. The goal yaws drawn are ``TaskConfig.goal_yaws_deg`` (default 0 and 90 deg).
 
 :func:`budget_config` is the variant that fits a small training budget (``../shared/TRAINING.md``), as block
-Grasp's: a residual policy (``tasks/residual.py``) on the scripted insertion of ``scene/block_insert_script.py``
+Grasp's: a residual policy (``tasks/residual.py``) on the scripted insertion of
+``tasks/scripted/block_insert_script.py``
 (alone 84, 80 and 83 / 100 at seeds 0, 1000 and 2000) that corrects its wrist (3 dims; the hand's 16 are pinned
 to the script's), the episode's progress in the observation (174 entries: the script's release and lift are
 timed), and yaw-90 goals only.
@@ -46,7 +47,8 @@ def default_config() -> TaskConfig:
 
 
 def budget_config() -> TaskConfig:
-    """The small-budget variant: a residual policy on the scripted insertion of ``scene/block_insert_script.py``
+    """The small-budget variant: a residual policy on the scripted insertion of
+    ``tasks/scripted/block_insert_script.py``
     that corrects its wrist (the script's hand applies as it is: it holds the reset's grasp, then opens), the
     episode's progress in the observation (the script's release and lift are timed), and goals at yaw 90 deg
     only (the held block's long side lies along world y, and neither the wrist nor the script can turn it).

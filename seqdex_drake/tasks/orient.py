@@ -6,7 +6,7 @@ fingertip term and penalties (paper). Success (release): the block's z axis with
 
 :func:`budget_config` is the variant that fits a small training budget (``../shared/TRAINING.md``), as block
 Grasp's: a residual policy (``tasks/residual.py``) on the scripted fingertip roll of
-``scene/block_orient_script.py`` (the script alone: see its docstring), the episode's progress in the
+``tasks/scripted/block_orient_script.py`` (the script alone: see its docstring), the episode's progress in the
 observation (160 entries), no hand smoothing; the policy learns a wrist correction (3 dims; the hand's 16 are
 pinned to the script's).
 """

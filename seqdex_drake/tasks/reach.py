@@ -27,8 +27,8 @@ def default_config() -> TaskConfig:
 
 #: Weight of the clearance term per step. 0 by default: Reach's reward then ignores the height, so its hand-over
 #: heights vary and F sees both usable and unusable ones (the design the method comparison needs). 0.03 (at most
-#: 0.9 per episode against up to 30 for x-y closeness) makes Reach prefer high hand-overs that Lower cannot use;
-#: ``results/chain_methods_clearance.md`` was measured that way (commit a4cc492), and F then never saw a usable one.
+#: 0.9 per episode against up to 30 for x-y closeness) makes Reach prefer high hand-overs that Lower cannot use,
+#: and F then never sees a usable one.
 CLEARANCE_WEIGHT = 0.0
 #: Heights (m, above the block) where the clearance term starts (Lower's goal) and saturates.
 CLEARANCE_LOW, CLEARANCE_HIGH = 0.10, 0.26

@@ -46,29 +46,3 @@ def make_task(name: str, config: TaskConfig | None = None) -> Task:
     """Creates the task ``name`` with ``config`` (default: its default_config())."""
     config = default_config(name) if config is None else config
     return REGISTRY[name][1](config)
-
-
-def make_env(name: str, config: TaskConfig | None = None, meshcat=None):
-    """A :class:`~seqdex_drake.envs.subtask_env.SubtaskEnv` for sub-task ``name``."""
-    from seqdex_drake.envs.subtask_env import SubtaskEnv
-
-    return SubtaskEnv(make_task(name, config), meshcat=meshcat)
-
-
-#: The observation layout of the paper's tables (``seqdex_drake.observation_layout``), for observation specs.
-_BASE_LAYOUT = ("joint_q(23) joint_dq(23) fingertips(4x13) palm(13) object(13) previous_action(19) "
-                "motor_torque(16)")
-
-
-def observation_spec(name: str, dim: int):
-    """The :class:`~seqdex_drake.chaining.spec.ObservationSpec` of sub-task ``name``'s observations of size
-    ``dim`` (goal and pixel parts as the paper's table has), recorded in buffers, F files and checkpoints."""
-    from seqdex_drake.chaining.spec import ObservationSpec
-    from seqdex_drake.observation_layout import BASE_SIZE, GOAL_SIZE
-
-    task_class = REGISTRY[name][1]
-    extras = (" goal(14)" if task_class.goal else "") + (" target_pixels(1)" if task_class.pixels else "")
-    paper_size = BASE_SIZE + (GOAL_SIZE if task_class.goal else 0) + (1 if task_class.pixels else 0)
-    if dim == paper_size + 1:  # TaskConfig.observe_time: the episode's progress appended.
-        extras += " progress(1)"
-    return ObservationSpec(dim, f"{name}: {_BASE_LAYOUT}{extras}")

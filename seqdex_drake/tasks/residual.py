@@ -5,7 +5,7 @@ does: the applied action is ``clip(base(observation, step) + policy action, -1, 
 layer starts near zero, only learns the correction. A sub-task opts in with ``TaskConfig.residual`` naming a
 base from :data:`RESIDUAL_BASES`; the env (:class:`~seqdex_drake.envs.subtask_env.SubtaskEnv`) adds the base to
 every action it is given, and a deployed policy system
-(``PolicySystem`` in ``systems/policy.py``, ``PolicyParams.residual``) adds it on its own tick count,
+(``PolicySystem`` in ``controller/policy.py``, ``PolicyParams.residual``) adds it on its own tick count,
 so training and the chain apply the same sum. The env's action space is then the correction: a gymnasium
 client or :func:`seqdex_drake.load_policy` deals in corrections, and the env turns them into robot actions.
 
@@ -22,6 +22,13 @@ from typing import Protocol
 
 import numpy as np
 
+from seqdex_drake.tasks.scripted.block_grasp_script import ScriptedBlockGrasp
+from seqdex_drake.tasks.scripted.block_insert_script import ScriptedBlockInsert
+from seqdex_drake.tasks.scripted.block_orient_script import ScriptedBlockOrient
+from seqdex_drake.tasks.scripted.block_search_script import ScriptedBlockSearch
+from seqdex_drake.tasks.scripted.tool_grasp_script import ScriptedToolGrasp
+from seqdex_drake.tasks.scripted.tool_reorient_gait import FingerGait
+
 
 class BaseController(Protocol):
     """A scripted controller usable as a residual base: Markov in (observation, step)."""
@@ -31,49 +38,37 @@ class BaseController(Protocol):
 
 
 def _tool_grasp_script() -> BaseController:
-    from seqdex_drake.scene.tool_grasp_script import ScriptedToolGrasp
-
     return ScriptedToolGrasp()
 
 
 def _block_grasp_script() -> BaseController:
-    from seqdex_drake.scene.block_grasp_script import ScriptedBlockGrasp
-
     return ScriptedBlockGrasp()
 
 
 def _block_insert_script() -> BaseController:
-    from seqdex_drake.scene.block_insert_script import ScriptedBlockInsert
-
     return ScriptedBlockInsert()
 
 
 def _block_search_script() -> BaseController:
-    from seqdex_drake.scene.block_search_script import ScriptedBlockSearch
-
     return ScriptedBlockSearch()
 
 
 def _block_orient_script() -> BaseController:
-    from seqdex_drake.scene.block_orient_script import ScriptedBlockOrient
-
     return ScriptedBlockOrient()
 
 
 def _tool_reorient_gait() -> BaseController:
-    from seqdex_drake.scene.tool_reorient_gait import FingerGait
-
     return FingerGait()
 
 
 #: Name -> factory of the scripted bases a ``TaskConfig.residual`` may name.
 RESIDUAL_BASES: dict[str, Callable[[], BaseController]] = {
-    "tool_grasp_script": _tool_grasp_script,  # The scripted hammer pickup (scene/tool_grasp_script.py).
-    "tool_reorient_gait": _tool_reorient_gait,  # A searched open-loop finger gait (scene/tool_reorient_gait.py).
-    "block_grasp_script": _block_grasp_script,  # The scripted block pickup (scene/block_grasp_script.py).
-    "block_orient_script": _block_orient_script,  # The scripted fingertip roll (scene/block_orient_script.py).
-    "block_search_script": _block_search_script,  # The scripted search (scene/block_search_script.py).
-    "block_insert_script": _block_insert_script,  # The scripted block insertion (scene/block_insert_script.py).
+    "tool_grasp_script": _tool_grasp_script,  # The scripted hammer pickup (tasks/scripted/tool_grasp_script.py).
+    "tool_reorient_gait": _tool_reorient_gait,  # A searched open-loop finger gait (scripted/tool_reorient_gait.py).
+    "block_grasp_script": _block_grasp_script,  # The scripted block pickup (tasks/scripted/block_grasp_script.py).
+    "block_orient_script": _block_orient_script,  # The scripted fingertip roll (tasks/scripted/block_orient_script.py).
+    "block_search_script": _block_search_script,  # The scripted search (tasks/scripted/block_search_script.py).
+    "block_insert_script": _block_insert_script,  # The scripted block insertion (scripted/block_insert_script.py).
 }
 
 

@@ -8,7 +8,7 @@ penalties (paper, lambda1 = 5). Success: pixels above the per-type threshold (re
 
 :func:`budget_config` is the variant that fits a small training budget (``../shared/TRAINING.md``), as block
 Grasp's: the episode's progress in the observation and a residual policy (``tasks/residual.py``) on the scripted
-search of ``scene/block_search_script.py``, which moves the open hand off the camera's line of sight to the
+search of ``tasks/scripted/block_search_script.py``, which moves the open hand off the camera's line of sight to the
 target (94-98 / 100 alone on seeds 0, 1000 and 2000; the rest are buried under other blocks): the policy
 corrects the wrist and the fingers.
 """
@@ -34,7 +34,8 @@ def default_config() -> TaskConfig:
 
 def budget_config() -> TaskConfig:
     """The small-budget variant: the episode's progress in the observation and the policy a residual on the
-    scripted search (``scene/block_search_script.py``), correcting its wrist and its fingers. The hand-target EMA
+    scripted search (``tasks/scripted/block_search_script.py``), correcting its wrist and its fingers. The hand-target
+    EMA
     stays the release's 0.6: the script holds the hand open, the reset's hand, so the smoothing never lags the
     script and only filters the policy's finger corrections. No scripted phases: success is tested at the last
     step, and the script's wrist law holds the hand clear until then."""

@@ -9,7 +9,8 @@ orientation within 0.3 rad of the start (FACTS.md's 0.3 rad orientation error: a
 release's scripted phases (the policy's wrist for 60 steps, a scripted lift over steps 60-90, then the hand
 frozen), the episode's progress in the observation (160 entries: the phases are timed) and a lift term in the
 reward, so that what the policy must learn is the approach and the closing; and a residual policy
-(``tasks/residual.py``) on the scripted pickup of ``scene/tool_grasp_script.py`` (40 % success alone): the policy
+(``tasks/residual.py``) on the scripted pickup of ``tasks/scripted/tool_grasp_script.py`` (40 % success alone): the
+policy
 learns a wrist correction (3 dims; the hand's 16 are pinned to the script's) that makes the script's grasp hold,
 starting from the script's success rather than from none.
 """

@@ -15,7 +15,8 @@ terminates. The hand-off lifts the tool more than 0.1 m off the table, so a drop
 lands; a 180 deg roll about the handle moves the origin by about 2 cm (it sits 1.2 cm off the handle's axis).
 
 :func:`budget_config` is the variant that fits a small training budget (``../shared/TRAINING.md``): a residual
-policy (``tasks/residual.py``) on the searched finger gait of ``scene/tool_reorient_gait.py``, which rolls the held
+policy (``tasks/residual.py``) on the searched finger gait of ``tasks/scripted/tool_reorient_gait.py``, which rolls the
+held
 hammer about its handle; the policy corrects the wrist (3 dims), and the episode's progress is in the observation
 (the gait is timed; 174 entries).
 """

@@ -1,0 +1,138 @@
+"""The README's main command measured over seeds: which of the assembly manual's blocks it places from each seed.
+
+Each seed runs the chain exactly as ``scripts/simulate_chain.py --headless --seed S`` does (the shipped
+checkpoints, 3 feasibility switches, the manual's blocks one after another in one scene, each until it is placed
+or its episode limit), for the first ``--blocks`` blocks of the manual. A block counts as placed by the runner's
+physical test (``ChainRunner.is_success``: within 2 cm and 0.2 rad of its goal, released and at rest).
+
+    python experiments/main_command_seeds.py --seeds 0-31 --blocks 1 --workers 2 \\
+        --out results/building_blocks/main_command_first_block.json
+    python experiments/main_command_seeds.py --seeds 0-15 --workers 2 --out
+    results/building_blocks/main_command_manual.json
+    python experiments/main_command_seeds.py --test     # one seed, the first block cut to 0.5 s, for CI
+
+Writes JSON: per block the seed, its index in the manual, type, the block fetched, whether it was placed, its
+errors, simulated time and switches; and the placed counts per manual step. About 1.5 min per block on a core.
+"""
+
+import argparse
+import json
+import sys
+import time
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SHIPPED = ROOT / "checkpoints" / "building_blocks"
+#: The most seeds one run takes.
+MAX_SEEDS = 1000
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``"0-31"``, ``"4,12"`` or a mix (``"0-3,9"``) -> the seeds, in order, each once."""
+    from seqdex_drake.user_input import InputError, check_seed
+
+    seeds: list[int] = []
+    for part in text.split(","):
+        try:
+            low, _, high = part.strip().partition("-")
+            span = range(int(low), int(high or low) + 1)
+        except ValueError:
+            raise InputError(f"--seeds: '{part}' is not a seed or a range like 0-31") from None
+        if not span:
+            raise InputError(f"--seeds: the range '{part}' is empty")
+        check_seed(span[0], "--seeds")
+        check_seed(span[-1], "--seeds")
+        if len(seeds) + len(span) > MAX_SEEDS:
+            raise InputError(f"--seeds: at most {MAX_SEEDS} seeds (about 1.5 min each per block)")
+        for seed in span:
+            if seed not in seeds:
+                seeds.append(seed)
+    return seeds
+
+
+def run_seed(job: tuple) -> list[dict]:
+    """The manual's first ``blocks`` blocks from ``seed`` (a fresh chain, as the main command builds it)."""
+    seed, checkpoints, manual, blocks, max_switches, time_limit = job
+    from seqdex_drake.evaluation.runner import ChainRunner, RunConfig
+    from seqdex_drake.manual import LoadManual, goal_vector
+
+    runner = ChainRunner(RunConfig(family="building_blocks", run_dir=checkpoints, max_switches=max_switches,
+                                   seed=seed))
+    rows = []
+    for index, step in enumerate(LoadManual(manual).steps[:blocks]):
+        start = time.perf_counter()
+        name = runner.start_block(step.block_type, goal_vector(step))
+        outcome = runner.run(time_limit or runner.episode_limit())
+        rows.append({"seed": seed, "step": index, "block_type": step.block_type, "block": name,
+                     "placed": bool(outcome.success), "position_error": round(float(outcome.position_error), 4),
+                     "rotation_error": round(float(outcome.rotation_error), 4), "time": round(outcome.time, 2),
+                     "switches": int(outcome.switches), "simulator_error": outcome.simulator_error,
+                     "wall_seconds": round(time.perf_counter() - start, 1)})
+    return rows
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", default="0-31", help="seeds: a range 0-31, a list 4,12 or both (default 0-31)")
+    parser.add_argument("--blocks", type=int, default=0, help="the manual's first N blocks (default: all)")
+    parser.add_argument("--manual", default="small_wall", help="assembly manual (default: small_wall)")
+    parser.add_argument("--checkpoints", default=str(SHIPPED), help="default: the shipped checkpoints")
+    parser.add_argument("--max-switches", type=int, default=3, help="feasibility switches per block (default 3)")
+    parser.add_argument("--workers", type=int, default=1, help="processes, one seed each at a time (default 1)")
+    parser.add_argument("--out", help="write the results to this JSON file")
+    parser.add_argument("--test", action="store_true", help="seed 0, the first block cut to 0.5 s, for CI")
+    args = parser.parse_args(argv)
+    from seqdex_drake.atomic import atomic_write
+    from seqdex_drake.manual import LoadManual, ManualError
+    from seqdex_drake.user_input import InputError, check_creatable
+
+    try:
+        seeds = [0] if args.test else parse_seeds(args.seeds)
+        steps = LoadManual(args.manual).steps
+        blocks = 1 if args.test else (args.blocks or len(steps))
+        if not 1 <= blocks <= len(steps):
+            raise InputError(f"--blocks must be in 1 .. {len(steps)} (the manual's blocks), got {args.blocks}")
+        if args.workers < 1:
+            raise InputError(f"--workers must be >= 1, got {args.workers}")
+        if args.max_switches < 0:
+            raise InputError(f"--max-switches must be >= 0, got {args.max_switches}")
+        if not (Path(args.checkpoints) / "manifest.json").is_file():
+            raise InputError(f"--checkpoints {args.checkpoints} has no manifest.json (not a shipped checkpoint folder)")
+        if args.out:
+            check_creatable(args.out, "--out")
+    except (InputError, ManualError) as error:
+        print(f"main_command_seeds: error: {error}", file=sys.stderr)
+        return 2
+    except (OSError, UnicodeDecodeError):  # A directory, an unreadable or a binary file.
+        print(f"main_command_seeds: error: --manual {args.manual}: cannot read it as a YAML assembly manual",
+              file=sys.stderr)
+        return 2
+    jobs = [(seed, args.checkpoints, args.manual, blocks, args.max_switches, 0.5 if args.test else None)
+            for seed in seeds]
+    rows = []
+    with get_context("spawn").Pool(min(args.workers, len(jobs))) as pool:
+        for seed_rows in pool.imap(run_seed, jobs):
+            for row in seed_rows:
+                print(f"seed {row['seed']} block {row['step'] + 1} (type {row['block_type']}, {row['block']}): "
+                      f"{'PLACED' if row['placed'] else 'not placed'} after {row['time']:.2f} s, error "
+                      f"{row['position_error'] * 100:.1f} cm {np.degrees(row['rotation_error']):.0f} deg "
+                      f"({row['wall_seconds']:.0f} s wall)", flush=True)
+            rows.extend(seed_rows)
+    placed = [sum(row["placed"] for row in rows if row["step"] == k) for k in range(blocks)]
+    seeds_placing = sorted({row["seed"] for row in rows if row["placed"]})
+    print(f"main_command_seeds: placed per manual step {placed} of {len(seeds)} seeds; seeds placing a block: "
+          f"{seeds_placing}")
+    if args.out:
+        result = {"checkpoints": args.checkpoints, "manual": args.manual, "max_switches": args.max_switches,
+                  "seeds": seeds, "blocks": blocks, "placed_per_step": placed, "seeds_placing": seeds_placing,
+                  "per_block": rows}
+        atomic_write(args.out, lambda file: file.write((json.dumps(result, indent=2) + "\n").encode()))
+        print(f"main_command_seeds: wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

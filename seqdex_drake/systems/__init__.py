@@ -1,1 +1,0 @@
-"""LeafSystems that run around the station: the operational-space approach controller, policies, switchers."""
