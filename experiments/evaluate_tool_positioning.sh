@@ -1,16 +1,17 @@
 #!/usr/bin/env bash
 # The Tool Positioning evaluation of results/tool_positioning.md, on the shipped checkpoints: the chain with and
 # without the feasibility switcher, Policy-Seq on the same budget, tool Grasp standalone, and the unseen tools.
-# Every row: 34 episodes x 3 seeds (102 episodes per tool). One worker process per seed (the records do not depend
-# on the split). About 2.5 hours on two cores (a failed unseen-tool episode runs the switcher's whole 21 s budget
-# with slow contact-rich physics, ~30 s of wall-clock each). Outputs under results/tool_positioning/.
+# Every row: 34 episodes x the held-out seeds 100, 101, 102 (102 episodes per tool; no tuning, checkpoint choice
+# or F fit used these seeds), the same episodes in every row. Two worker processes (the records do not depend on
+# the split). About 3 hours on two cores (a failed unseen-tool episode runs the switcher's whole 21 s budget with
+# slow contact-rich physics, ~30 s of wall-clock each). Outputs under results/tool_positioning/.
 #
 #   bash experiments/evaluate_tool_positioning.sh [--resume]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 SEQDEX=${SEQDEX:-.venv/bin/seqdex}
 OUT=results/tool_positioning
-COMMON=(--task tool_positioning --seeds 3 --workers 3 --skip-ablations "$@")
+COMMON=(--task tool_positioning --seed 100 --seeds 3 --workers 2 --skip-ablations "$@")
 
 # Ours: the shipped chain with the switcher (at most 3 switches), the hammer.
 "$SEQDEX" evaluate "${COMMON[@]}" --episodes 34 --objects hammer --run-dir checkpoints/tool_positioning \
@@ -18,12 +19,17 @@ COMMON=(--task tool_positioning --seeds 3 --workers 3 --skip-ablations "$@")
 # Ours without the switcher: each stage runs its time budget in order.
 "$SEQDEX" evaluate "${COMMON[@]}" --episodes 34 --objects hammer --run-dir checkpoints/tool_positioning \
     --max-switches 0 --out "$OUT/eval_sequential" --label "ours without the switcher (sequential)"
+# The switching ablation: at most 1 and 2 switches (0 and 3 are the rows above).
+for switches in 1 2; do
+    "$SEQDEX" evaluate "${COMMON[@]}" --episodes 34 --objects hammer --run-dir checkpoints/tool_positioning \
+        --max-switches "$switches" --out "$OUT/eval_switches_$switches" --label "ours (at most $switches switches)"
+done
 # Policy-Seq on the same budget: forward initialization only (its fine-tuning budget trains on the sub-task reward).
 "$SEQDEX" evaluate "${COMMON[@]}" --episodes 34 --objects hammer \
     --run-dir checkpoints/baselines/tool_positioning_policy_seq --max-switches 0 --out "$OUT/eval_policy_seq" \
     --label "Policy-Seq, same budget (sequential)"
 # Tool Grasp standalone, the shipped (fine-tuned) policy, 3 x 100 episodes.
-for seed in 0 1000 2000; do
+for seed in 3000 4000 5000; do  # Held out: tool Grasp was tuned on 0, 1000, 2000.
     "$SEQDEX" rollout --task tool_grasp --checkpoint checkpoints/tool_positioning/stages/tool_grasp/best.pt \
         --preset budget --episodes 100 --seed "$seed" --out "$OUT/tool_grasp_shipped_seed$seed.json"
 done
