@@ -136,6 +136,33 @@ def test_feasibility_subcommand_reports_transitions_that_cannot_define_f(runs, t
     assert not out.exists() and transitions.read_bytes() == before
 
 
+def test_feasibility_subcommand_fits_the_success_label_where_returns_cannot(runs, tmp_path, monkeypatch, capsys):
+    """Successful returns all negative (Orient in the pile): the return label cannot set h, the success label
+    can (h = 0.5), and --folds reports the out-of-fold AUC and R^2 on the record."""
+    import seqdex_drake.chaining.bidirectional as bidirectional
+    from seqdex_drake.chaining.feasibility_io import load_feasibility
+
+    with np.load(runs / "seqdex" / "transitions" / "lower.npz") as data:
+        shifted = {key: data[key] for key in data.files}
+    count = len(shifted["returns"])
+    shifted["successes"] = np.arange(count) % 2 == 0
+    shifted["returns"] = np.where(shifted["successes"], -5.0, 1.0)
+    monkeypatch.setattr(bidirectional.Pipeline, "transition_data", lambda self, index: shifted)
+    out = tmp_path / "success.pt"
+    assert main(["feasibility", "--run-dir", str(runs / "seqdex"), "--task", "lower", "--out", str(out)]) == 1
+    capsys.readouterr()
+    assert main(["feasibility", "--run-dir", str(runs / "seqdex"), "--task", "lower", "--label", "success",
+                 "--folds", "2", "--out", str(out)]) == 0
+    assert "success label" in capsys.readouterr().out
+    f = load_feasibility(out)
+    assert (f.config.label, f.threshold) == ("success", 0.5) and "cv_auc" in f.metrics
+    record = json.loads((runs / "seqdex" / "pipeline.json").read_text())["done"]["feasibility_cli_lower_h10"]
+    assert record["label"] == "success" and record["cv_folds"] == 2 and record["cv_n"] == count
+    for bad, message in ((["--folds", "1"], "--folds"),):
+        assert main(["feasibility", "--run-dir", str(runs / "seqdex"), "--task", "lower", *bad]) == 2
+        assert message in capsys.readouterr().err
+
+
 def test_finetune_subcommand_continues_a_run(runs, capsys):
     assert main(["finetune", "--run-dir", str(runs / "tstar")]) == 0
     assert "chain success" in capsys.readouterr().out

@@ -21,7 +21,14 @@ import torch
 
 from seqdex_drake.atomic import atomic_write
 from seqdex_drake.chaining.chain import ChainSpec, LoadChain
-from seqdex_drake.chaining.feasibility import feasibility_threshold, pad_history, train_feasibility
+from seqdex_drake.chaining.feasibility import (
+    SUCCESS_THRESHOLD,
+    cross_validate,
+    feasibility_targets,
+    feasibility_threshold,
+    pad_history,
+    train_feasibility,
+)
 from seqdex_drake.chaining.feasibility_io import load_feasibility, save_feasibility
 from seqdex_drake.chaining.pipeline import (
     CHAINED_METHODS,
@@ -246,17 +253,27 @@ class Pipeline:
         with np.load(path) as data:
             return {key: data[key] for key in data.files}
 
-    def fit_feasibility(self, index: int, history: int, temporal: bool, path, **architecture) -> dict:
+    def fit_feasibility(self, index: int, history: int, temporal: bool, path, label: str | None = None,
+                        folds: int = 0, **architecture) -> dict:
         """Trains F^{index} (attention over ``history`` steps, or the MLP on the last observation) on the saved
-        transitions, sets h from the successful returns, and writes it to ``path``. ``architecture`` overrides
+        transitions, sets h, and writes it to ``path``. ``label`` ("return" or "success"; default the pipeline
+        config's ``feasibility_label``) is what F regresses, and sets h: the successful returns' quantile, or
+        :data:`~seqdex_drake.chaining.feasibility.SUCCESS_THRESHOLD`. ``architecture`` overrides
         :class:`~seqdex_drake.chaining.feasibility.FeasibilityConfig` fields (``d_model``, ``heads``, ``layers``,
-        ``feedforward``); the outcome records the ones used."""
+        ``feedforward``); the outcome records the ones used, the label and the validation R^2 and AUC, and with
+        ``folds`` >= 2 the out-of-fold R^2 and AUC of that many stratified folds
+        (:func:`~seqdex_drake.chaining.feasibility.cross_validate`; the F written is fitted as without)."""
         data = self.transition_data(index)
         source, target = self.stages[index - 1], self.stages[index]
         config = dataclasses.replace(self.config.feasibility_config(), history=history if temporal else 0,
-                                     temporal=temporal, **architecture)
-        model, metrics = train_feasibility(data["histories"], data["returns"], config)
-        if data["successes"].any():
+                                     temporal=temporal, **({"label": label} if label else {}), **architecture)
+        targets = feasibility_targets(data["returns"], data["successes"], config.label)
+        model, metrics = train_feasibility(data["histories"], targets, config, successes=data["successes"])
+        if folds:
+            metrics.update(cross_validate(data["histories"], targets, data["successes"], config, folds))
+        if config.label == "success":
+            threshold = SUCCESS_THRESHOLD
+        elif data["successes"].any():
             threshold = feasibility_threshold(data["returns"], data["successes"], self.config.threshold_quantile)
         else:  # Without a success h is undefined; the best return seen keeps c > 1 rare. Said loudly.
             threshold = float(max(data["returns"].max(), 1e-6))
@@ -265,7 +282,10 @@ class Pipeline:
         dim = data["histories"].shape[-1]
         save_feasibility(path, model, config, threshold, observation_spec(source, dim), source_task=source,
                          target_task=target, metrics=metrics)
-        return {"threshold": threshold, "val_r2": float(metrics.get("val_r2", np.nan)), "history": config.history,
+        return {"threshold": threshold, "label": config.label, "val_r2": float(metrics.get("val_r2", np.nan)),
+                "val_auc": float(metrics.get("val_auc", np.nan)), "n_val": int(metrics.get("n_val", 0)),
+                **{key: metrics[key] for key in ("cv_auc", "cv_r2", "cv_folds", "cv_n") if key in metrics},
+                "history": config.history,
                 **{name: getattr(config, name) for name in ("d_model", "heads", "layers", "feedforward")}}
 
     def transition_bonus(self, phase: str, index: int):

@@ -21,6 +21,13 @@ otherwise.
 
 Both models normalize observations inside (buffers fitted on the training set) and predict returns in return
 units (the regression runs on standardized returns; the mean and scale are buffers of the model).
+
+Labels (``FeasibilityConfig.label``): ``"return"`` regresses the next policy's return (paper eq. 1; h from the
+successful returns, :func:`feasibility_threshold`); ``"success"`` regresses its success, 0 or 1 (the authors'
+release labels F with success), so F estimates the probability that the next policy succeeds from the state
+and h = :data:`SUCCESS_THRESHOLD` (c > 1: more likely to succeed than not). The success label is the one to use
+where a sub-task's returns do not order its outcomes (Orient in the pile: successful episodes with negative
+returns). Either way the fit reports the validation AUC of F against success (:func:`roc_auc`).
 """
 
 import abc
@@ -30,6 +37,13 @@ import math
 import numpy as np
 import torch
 from torch import nn
+
+from seqdex_drake.chaining.feasibility_metrics import r_squared, roc_auc
+
+LABELS = ("return", "success")
+"""What F regresses: the next policy's return (paper eq. 1) or its success (0/1, the release's label)."""
+SUCCESS_THRESHOLD = 0.5
+"""h of a success-labelled F: switch when the predicted success probability exceeds one half."""
 
 
 @dataclasses.dataclass
@@ -75,6 +89,9 @@ class FeasibilityConfig:
     """Normalized observations are clipped to +-this."""
     keep_best: bool = True
     """Return the weights of the epoch with the lowest validation loss (training loss without a validation set)."""
+    label: str = "return"
+    """The regression target (:data:`LABELS`): "return" (paper eq. 1) or "success" (0/1; see the module
+    docstring)."""
     seed: int = 0
     """Seeds initialization, the split, shuffling and dropout (training does not disturb global RNG state)."""
     device: str = "cpu"
@@ -87,6 +104,8 @@ class FeasibilityConfig:
             raise ValueError(f"heads ({self.heads}) must divide d_model ({self.d_model})")
         if self.positional not in ("learned", "sinusoidal"):
             raise ValueError(f"positional must be 'learned' or 'sinusoidal', got {self.positional!r}")
+        if self.label not in LABELS:
+            raise ValueError(f"label must be one of {LABELS}, got {self.label!r}")
         if self.pooling not in ("last", "mean"):
             raise ValueError(f"pooling must be 'last' or 'mean', got {self.pooling!r}")
         self.mlp_hidden = tuple(int(h) for h in self.mlp_hidden)
@@ -245,18 +264,24 @@ def _mse(model: _FeasibilityModel, histories: torch.Tensor, targets: torch.Tenso
     return total / max(len(targets), 1)
 
 
-def train_feasibility(histories, returns, config: FeasibilityConfig) -> tuple[_FeasibilityModel, dict]:
-    """Fits F by L2 regression of the next policy's return onto the transition history (paper eq. 1).
+def train_feasibility(histories, returns, config: FeasibilityConfig,
+                      successes=None) -> tuple[_FeasibilityModel, dict]:
+    """Fits F by L2 regression of its label onto the transition history (paper eq. 1).
 
     Args:
         histories: (N, T, obs_dim) observation histories ending at the transition states; cut or left-padded
             (:func:`pad_history`) to ``config.input_length``.
-        returns: (N,) returns of the next policy started from those states.
+        returns: (N,) the regression targets: returns of the next policy started from those states (or, for
+            ``config.label == "success"``, its successes as 0/1: :func:`feasibility_targets`).
         config: model and training settings; training is deterministic for ``config.seed`` (on CPU).
+        successes: optional (N,) booleans, the next policy's successes: adds ``train_auc`` / ``val_auc``, how
+            well F orders successful hand-overs above failed ones (:func:`roc_auc`; NaN where a split lacks one
+            of the two outcomes).
 
     Returns:
         The model (eval mode, on ``config.device``) and metrics: ``train_mse`` / ``val_mse`` (standardized
-        returns, eval mode), ``val_rmse`` (return units), ``val_r2``, ``best_epoch``, ``n_train``, ``n_val``.
+        targets, eval mode), ``val_rmse`` (target units), ``val_r2``, ``best_epoch``, ``n_train``, ``n_val``
+        (and the AUCs with ``successes``).
     """
     histories = pad_history(np.asarray(histories, dtype=np.float32), config.input_length)
     returns = np.asarray(returns, dtype=np.float32).reshape(-1)
@@ -309,12 +334,55 @@ def train_feasibility(histories, returns, config: FeasibilityConfig) -> tuple[_F
                    "n_train": len(y_train), "n_val": n_val}
         if n_val:
             val_mse = _mse(model, x_val, y_val, config.batch_size)
-            variance = float(y_val.var(unbiased=False))
             metrics.update(val_mse=val_mse, val_rmse=math.sqrt(val_mse) * float(model.return_std),
-                           val_r2=1.0 - val_mse / variance if variance > 0 else float("nan"))
+                           val_r2=r_squared(val_mse, float(y_val.var(unbiased=False))))
         else:
             metrics.update(val_mse=float("nan"), val_rmse=float("nan"), val_r2=float("nan"))
+        if successes is not None:
+            labels = np.asarray(successes, dtype=bool).reshape(-1)
+            if labels.shape != returns.shape:
+                raise ValueError(f"successes {labels.shape} and returns {returns.shape} differ in shape")
+            for split, index, x in (("train", train_index, x_train), ("val", val_index, x_val)):
+                with torch.no_grad():
+                    predicted = model.forward_normalized(x).cpu().numpy() if len(index) else np.zeros(0)
+                metrics[f"{split}_auc"] = roc_auc(predicted, labels[index.numpy()])
     return model, metrics
+
+
+def feasibility_targets(returns, successes, label: str) -> np.ndarray:
+    """What F of ``label`` regresses: the returns, or the successes as 0.0 / 1.0."""
+    if label not in LABELS:
+        raise ValueError(f"label must be one of {LABELS}, got {label!r}")
+    values = returns if label == "return" else np.asarray(successes, dtype=bool)
+    return np.asarray(values, dtype=np.float64).reshape(-1)
+
+
+def cross_validate(histories, targets, successes, config: FeasibilityConfig, folds: int = 5) -> dict:
+    """Out-of-fold quality of F on hand-overs it was not fitted on: ``folds`` stratified folds (successes and
+    failures dealt round-robin after a seeded shuffle), one F per fold fitted on the others (no validation
+    split), every hand-over predicted once by the F that did not see it. Returns ``cv_auc`` (:func:`roc_auc` of
+    the pooled out-of-fold predictions against ``successes``), ``cv_r2`` (of ``targets``), ``cv_folds`` and the
+    count ``cv_n``. Deterministic for ``config.seed``."""
+    histories = np.asarray(histories, dtype=np.float32)
+    targets = np.asarray(targets, dtype=np.float64).reshape(-1)
+    labels = np.asarray(successes, dtype=bool).reshape(-1)
+    if not 2 <= folds <= len(targets) or labels.shape != targets.shape:
+        raise ValueError(f"need 2 <= folds <= N and N successes: folds {folds}, {targets.shape} targets, "
+                         f"{labels.shape} successes")
+    rng = np.random.default_rng(config.seed)
+    fold_of = np.empty(len(targets), dtype=int)
+    for outcome in (True, False):  # Stratified: each fold gets its share of successes and of failures.
+        members = rng.permutation(np.flatnonzero(labels == outcome))
+        fold_of[members] = (np.arange(len(members)) + (0 if outcome else int(labels.sum()))) % folds
+    predictions = np.zeros(len(targets))
+    fold_config = dataclasses.replace(config, val_fraction=0.0)
+    for fold in range(folds):
+        held = fold_of == fold
+        model, _ = train_feasibility(histories[~held], targets[~held], fold_config)
+        predictions[held] = model.predict(histories[held])
+    variance = float(targets.var())
+    return {"cv_auc": roc_auc(predictions, labels), "cv_folds": folds, "cv_n": len(targets),
+            "cv_r2": r_squared(float(((predictions - targets) ** 2).mean()), variance)}
 
 
 def feasibility_threshold(returns, successes, quantile: float = 0.1) -> float:
@@ -362,5 +430,6 @@ def walk_back(scores: np.ndarray) -> int:
 
 # The file format (save_feasibility, load_feasibility, FeasibilityFile) lives in ``feasibility_io``, which builds
 # on the classes above; import it from there (re-exporting it here would make the two modules import each other).
-__all__ = ["FeasibilityConfig", "MlpFeasibility", "TemporalFeasibility", "build_feasibility_model",
-           "feasibility_threshold", "pad_history", "score", "train_feasibility", "walk_back"]
+__all__ = ["LABELS", "SUCCESS_THRESHOLD", "FeasibilityConfig", "MlpFeasibility", "TemporalFeasibility",
+           "build_feasibility_model", "cross_validate", "feasibility_targets", "feasibility_threshold",
+           "pad_history", "score", "train_feasibility", "walk_back"]

@@ -29,7 +29,7 @@ import numpy as np
 
 from seqdex_drake.atomic import atomic_write
 from seqdex_drake.chaining.chain import ChainSpec
-from seqdex_drake.chaining.feasibility import FeasibilityConfig
+from seqdex_drake.chaining.feasibility import LABELS, FeasibilityConfig
 from seqdex_drake.tasks.run_config import PRESETS  # Task configs and PPO presets of the stages (PipelineConfig.preset).
 
 METHODS = ("seqdex", "seqdex_no_temporal", "policy_seq", "tstar", "vchain", "scratch", "curriculum")
@@ -75,7 +75,9 @@ class PipelineConfig:
     feasibility_epochs: int = 150
     """Epochs of F's regression."""
     threshold_quantile: float = 0.1
-    """h is this quantile of the returns of successful executions."""
+    """h is this quantile of the returns of successful executions (``feasibility_label = "return"``)."""
+    feasibility_label: str = "return"
+    """What every F regresses: "return" (paper eq. 1) or "success" (0/1, the release's label; h = 0.5)."""
     tstar_steps: int = 500
     """Discriminator updates per hand-over (T-STAR)."""
     max_switches: int = 3
@@ -111,6 +113,9 @@ class PipelineConfig:
             raise PipelineError(f"backend must be 'process' or 'serial', got {self.backend!r}")
         if self.envs_per_worker is not None and self.envs_per_worker < 1:
             raise PipelineError(f"envs_per_worker must be >= 1, got {self.envs_per_worker}")
+        if self.feasibility_label not in LABELS:
+            raise PipelineError(f"feasibility_label must be one of {', '.join(LABELS)}, got "
+                                f"{self.feasibility_label!r}")
         if self.preset not in PRESETS:
             raise PipelineError(f"unknown preset {self.preset!r}; presets: {', '.join(PRESETS)}")
         self.init_checkpoints = {str(task): str(path) for task, path in dict(self.init_checkpoints).items()}
@@ -127,7 +132,7 @@ class PipelineConfig:
     def feasibility_config(self) -> FeasibilityConfig:
         temporal = self.method == "seqdex"
         return FeasibilityConfig(history=self.history if temporal else 0, temporal=temporal,
-                                 epochs=self.feasibility_epochs, seed=self.seed)
+                                 epochs=self.feasibility_epochs, seed=self.seed, label=self.feasibility_label)
 
     def to_dict(self) -> dict:
         data = dataclasses.asdict(self)

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from seqdex_drake.chaining.bidirectional import Pipeline
 from seqdex_drake.chaining.chain import ChainError, ChainNames, LoadChain
-from seqdex_drake.chaining.feasibility import FeasibilityConfig
+from seqdex_drake.chaining.feasibility import LABELS, FeasibilityConfig
 from seqdex_drake.chaining.pipeline import METHODS, PipelineConfig, PipelineError
 from seqdex_drake.chaining.stage_envs import default_env_kit
 from seqdex_drake.cli import CliError
@@ -52,6 +52,8 @@ def add_parsers(commands) -> None:
     pipeline.add_argument("--transition-episodes", type=int, help="rollouts per hand-over for buffers and F")
     pipeline.add_argument("--eval-episodes", type=int, help="chain episodes of the final evaluation")
     pipeline.add_argument("--lambda2", type=float, help="weight of the transition bonus (lambda1 is 1)")
+    pipeline.add_argument("--feasibility-label", choices=LABELS,
+                          help="what every F regresses: return (paper eq. 1, default) or success (0/1, h = 0.5)")
     pipeline.add_argument("--preset", choices=PRESETS, help="paper: each task's default MDP, the paper's PPO "
                           "(default); budget: each task's small-budget variant and PPO preset (seqdex train "
                           "--preset budget)")
@@ -70,6 +72,12 @@ def add_parsers(commands) -> None:
     feasibility.add_argument("--task", required=True, help="the stage whose F to train (not the first)")
     feasibility.add_argument("--history", type=int, default=10, help="H, observations per input (default 10)")
     feasibility.add_argument("--no-temporal", action="store_true", help="the MLP on the last observation")
+    feasibility.add_argument("--label", choices=LABELS, help="what F regresses: return (paper eq. 1; h from the "
+                             "successful returns) or success (0/1, the release's label; h = 0.5); default: the "
+                             "run's --feasibility-label")
+    feasibility.add_argument("--folds", type=int, default=0, metavar="K",
+                             help="also report the out-of-fold R^2 and AUC of K stratified folds (K >= 2; K more "
+                             "fits, the F written is the same)")
     feasibility.add_argument("--out", help="output file (default: feasibility/<task>.pt for H = 10, else "
                              "feasibility/<task>_h<H>.pt)")
     feasibility.add_argument("--recollect", action="store_true",
@@ -122,10 +130,12 @@ def run_pipeline(args) -> int:
         ("stage_steps", args.stage_steps), ("finetune_steps", args.finetune_steps), ("iterations", args.iterations),
         ("transition_episodes", args.transition_episodes), ("eval_episodes", args.eval_episodes),
         ("lambda2", args.lambda2), ("backend", args.backend), ("envs_per_worker", args.envs_per_worker),
-        ("num_envs", args.num_envs), ("preset", args.preset)) if value is not None}
+        ("num_envs", args.num_envs), ("preset", args.preset), ("feasibility_label", args.feasibility_label))
+        if value is not None}
     init = _init_checkpoints(args.init)
     for key, value in overrides.items():
-        if key in ("backend", "lambda2", "preset") or (key == "stage_steps" and value == 0 and init):
+        if key in ("backend", "lambda2", "preset", "feasibility_label") or (
+                key == "stage_steps" and value == 0 and init):
             continue
         if value < 1:
             raise CliError(f"--{key.replace('_', '-')} must be >= 1, got {value}")
@@ -209,9 +219,12 @@ def run_feasibility(args) -> int:
         raise CliError(f"{args.task} is the chain's first stage: no F^1 exists (F^i scores hand-overs into stage i)")
     if not 0 <= args.history <= 15:
         raise CliError(f"--history must be in 0..15 (the saved transitions hold 15 steps), got {args.history}")
-    for task in pipeline.stages[:index + 1]:
+    collecting = args.recollect or not pipeline.run.transitions(args.task).is_file()
+    for task in pipeline.stages[:index + 1] if collecting else ():  # Saved transitions need no policy.
         if not pipeline.run.policy(task).is_file():
             raise CliError(f"{pipeline.run.policy(task)} is missing; run seqdex pipeline on {args.run_dir} first")
+    if args.folds < 0 or args.folds == 1:
+        raise CliError(f"--folds takes 0 (none) or K >= 2, got {args.folds}")
     if args.intermediate < 0 or (args.intermediate and not args.recollect):
         raise CliError("--intermediate takes a count >= 0 and needs --recollect")
     scenes = _scenes(args.scene, pipeline.stages[:index + 1], args.task, args.recollect)
@@ -237,7 +250,8 @@ def run_feasibility(args) -> int:
         out = Path(args.out) if args.out else (default if temporal and args.history == 10 else
                                                 default.with_name(f"{args.task}_h{args.history if temporal else 0}.pt"))
         try:
-            outcome = pipeline.fit_feasibility(index, args.history, temporal, out, **architecture)
+            outcome = pipeline.fit_feasibility(index, args.history, temporal, out, label=args.label,
+                                               folds=args.folds, **architecture)
         except ValueError as error:  # The data cannot define F (e.g. no positive threshold h): nothing is written.
             raise CliError(f"F for {args.task} cannot be fitted from {pipeline.run.transitions(args.task)} (kept): "
                            f"{error}", code=1) from error
@@ -247,8 +261,11 @@ def run_feasibility(args) -> int:
                                  scenes=scenes))
     except RuntimeError as error:
         raise CliError(str(error), code=1) from error
-    print(f"seqdex feasibility: F for {args.task} (H = {outcome['history']}, {'attention' if temporal else 'MLP'}), "
-          f"h = {outcome['threshold']:.4g}, validation R^2 {outcome['val_r2']:.3f}; wrote {out}")
+    print(f"seqdex feasibility: F for {args.task} (H = {outcome['history']}, {'attention' if temporal else 'MLP'}, "
+          f"{outcome['label']} label), h = {outcome['threshold']:.4g}, validation R^2 {outcome['val_r2']:.3f}, "
+          f"AUC {outcome['val_auc']:.3f} ({outcome['n_val']} hand-overs)"
+          + (f"; {outcome['cv_folds']}-fold out-of-fold R^2 {outcome['cv_r2']:.3f}, AUC {outcome['cv_auc']:.3f} "
+             f"({outcome['cv_n']} hand-overs)" if "cv_auc" in outcome else "") + f"; wrote {out}")
     return 0
 
 
