@@ -138,4 +138,13 @@ if [ "$stale" = 1 ]; then
   printf '%s\n%s\n' "$want" "$build_missing" >"$stamp"
 fi
 cd "$repo"
+# The same bits on every x86-64 machine with AVX2 and FMA: OpenBLAS's, numpy's, Drake's and torch's AVX2 kernels
+# (seqdex_drake/numerics.py, whose PINNED these must equal: tests/test_numerics.py), a variable already set kept.
+if [ "$(uname -m)" = x86_64 ] && grep -qw avx2 /proc/cpuinfo && grep -qw fma /proc/cpuinfo; then
+  export OPENBLAS_CORETYPE="${OPENBLAS_CORETYPE-Haswell}"
+  export NPY_DISABLE_CPU_FEATURES="${NPY_DISABLE_CPU_FEATURES-X86_V4 AVX512F AVX512CD AVX512_KNL AVX512_KNM \
+AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL AVX512_SPR}"
+  export DRAKE_DISABLE_CPU_FEATURES="${DRAKE_DISABLE_CPU_FEATURES-AVX512F}"
+  export ATEN_CPU_CAPABILITY="${ATEN_CPU_CAPABILITY-avx2}"
+fi
 exec "$venv/bin/$1" "${@:2}"

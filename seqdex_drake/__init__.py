@@ -13,9 +13,18 @@ Public API::
     policy = load_policy("runs/grasp/last.pt")  # numpy observation(s) in, action(s) out
 """
 
-from seqdex_drake.envs import registration as _registration
-from seqdex_drake.scenario import LoadScenario, Scenario, ScenarioError, ScenarioNames
-from seqdex_drake.station import CANONICAL_JOINTS, MakeControllerPlant, MakeStation, RefreshSampledOutputs
+from seqdex_drake import numerics as _numerics
+
+_numerics.pin()  # Before anything loads numpy or torch: the same bits on every x86-64 machine (numerics.py).
+
+from seqdex_drake.envs import registration as _registration  # noqa: E402 - after the pin, on purpose.
+from seqdex_drake.scenario import LoadScenario, Scenario, ScenarioError, ScenarioNames  # noqa: E402
+from seqdex_drake.station import (  # noqa: E402
+    CANONICAL_JOINTS,
+    MakeControllerPlant,
+    MakeStation,
+    RefreshSampledOutputs,
+)
 
 # The sub-task envs' gymnasium ids (lazy entry points: nothing is built until gym.make).
 _registration.register_envs()

@@ -1,4 +1,9 @@
-"""Fixtures shared by test modules: each benchmark's quick run, made once per session."""
+"""Fixtures shared by test modules: each benchmark's quick run, made once per session.
+
+``seqdex_drake`` is imported first, before any test module loads numpy or torch, so that its kernel pin
+(``seqdex_drake/numerics.py``) holds for the whole session and recorded episodes replay bit for bit."""
+
+import seqdex_drake  # noqa: F401, I001 - first: pins numpy's, OpenBLAS's and torch's kernels before they load.
 
 import importlib.util
 import os

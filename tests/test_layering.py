@@ -22,7 +22,8 @@ PACKAGE_DIR = Path(__file__).resolve().parent.parent / "seqdex_drake"
 #: package or module prefix; the root package (``seqdex_drake/__init__.py``, the public facade) stands above all.
 LAYERS = [
     ("plain data", ("seqdex_drake.scenario", "seqdex_drake.atomic", "seqdex_drake.observation_layout",
-                    "seqdex_drake.observation_spec", "seqdex_drake.env_state", "seqdex_drake.user_input")),
+                    "seqdex_drake.observation_spec", "seqdex_drake.env_state", "seqdex_drake.user_input",
+                    "seqdex_drake.numerics")),
     ("models", ("seqdex_drake.robots", "seqdex_drake.modeling")),
     ("scene", ("seqdex_drake.scene",)),
     ("station", ("seqdex_drake.station", "seqdex_drake.manual", "seqdex_drake.harness")),

@@ -1,6 +1,15 @@
 """The building blocks of the numpy inference snapshots: numpy versions of torch's activations, the collector of
 copied tensors (with their in-place version counters, for staleness) and the dense-stack evaluator.
 
+Bits that do not depend on the machine. numpy picks its BLAS kernels (OpenBLAS's per-CPU GEMM) and its ufunc
+loops (``exp``, ``tanh``: AVX2 or AVX-512 implementations) from the CPU it runs on, and each gives other last
+bits: the same shipped policy gave four different outputs on one machine under four CPU-feature settings, so a
+chain episode recorded on one machine played differently on another (the chain is chaotic: a last-bit change
+in one action moves the whole episode). The snapshots therefore use only arithmetic whose bits are fixed by
+IEEE 754 and numpy's code, whatever the CPU: :func:`matmul` (``np.einsum``'s own loops, never BLAS),
+elementwise ``+ - * /`` and ``sqrt`` (correctly rounded everywhere), ``np.sum`` (numpy's pairwise summation),
+and :func:`exp` and :func:`erf` evaluated here in float64 from those operations alone.
+
 They sit in their own module, under both :mod:`seqdex_drake.controller.inference` (the policy snapshot, and the
 public entry point that re-exports the feasibility snapshots) and
 :mod:`seqdex_drake.controller.inference_feasibility` (the feasibility snapshots), so that each of those imports them
@@ -9,6 +18,7 @@ and neither imports the other in a circle. Not a public API.
 
 from __future__ import annotations
 
+import math
 import operator
 
 import numpy as np
@@ -20,15 +30,59 @@ _VERSION = operator.attrgetter("_version")  # A tensor's in-place modification c
 _SELU_ALPHA, _SELU_SCALE = 1.6732632423543772848170429916717, 1.0507009873554804934193349852946
 
 
+# ------------------------------------------------------------------------------ machine-independent arithmetic
+_LN2_HI, _LN2_LO = 6.93147180369123816490e-01, 1.90821492927058770002e-10  # Cody-Waite split of ln 2.
+_EXP_TAYLOR = tuple(1.0 / math.factorial(k) for k in range(14))  # e^r to 1e-17 for |r| <= ln(2) / 2.
+#: Abramowitz & Stegun 7.1.26: erf to 1.5e-7 (about a float32 ulp at 1), from +, *, / and exp alone.
+_ERF_P, _ERF_A = 0.3275911, (0.254829592, -0.284496736, 1.421413741, -1.453152027, 1.061405429)
+
+
+def matmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a @ b`` (``b`` a matrix, or a stack broadcast against ``a``'s leading axes) through ``np.einsum``'s own
+    loops, which numpy never hands to BLAS (without ``optimize``): the same bits on every CPU."""
+    if b.ndim == 2:
+        return np.einsum("...j,jk->...k", a, b)
+    if a.ndim == 1:  # A vector times a stack of matrices, as numpy's matmul: the vector's axis is contracted.
+        return np.einsum("j,...jk->...k", a, b)
+    return np.einsum("...ij,...jk->...ik", a, b)
+
+
+def exp(x: np.ndarray) -> np.ndarray:
+    """e^x in ``x``'s dtype, computed in float64 by range reduction (x = k ln 2 + r) and a Taylor polynomial in
+    r, from correctly rounded operations only (within 2 float64 ulps; float32 results are almost always
+    torch's)."""
+    x64 = np.clip(np.asarray(x, dtype=np.float64), -745.0, 709.0)
+    k = np.rint(x64 * (1.0 / math.log(2.0)))
+    r = (x64 - k * _LN2_HI) - k * _LN2_LO
+    p = np.full_like(r, _EXP_TAYLOR[-1])
+    for coefficient in _EXP_TAYLOR[-2::-1]:
+        p *= r
+        p += coefficient
+    return np.ldexp(p, k.astype(np.int64)).astype(np.asarray(x).dtype, copy=False)
+
+
+def erf(x: np.ndarray) -> np.ndarray:
+    """erf(x) in ``x``'s dtype to 1.5e-7 (Abramowitz & Stegun 7.1.26, in float64 with :func:`exp`)."""
+    x64 = np.asarray(x, dtype=np.float64)
+    t = 1.0 / (1.0 + _ERF_P * np.abs(x64))
+    poly = np.full_like(t, _ERF_A[-1])
+    for coefficient in _ERF_A[-2::-1]:
+        poly *= t
+        poly += coefficient
+    value = 1.0 - poly * t * exp(-(x64 * x64))
+    return np.copysign(value, x64).astype(np.asarray(x).dtype, copy=False)
+
+
 # ------------------------------------------------------------------------------------------- activations
 def _elu(x: np.ndarray, alpha: float = 1.0) -> np.ndarray:
-    """ELU in place: ``max(x, 0) + alpha * expm1(min(x, 0))`` (no overflow for large x)."""
-    negative = np.minimum(x, 0.0)
-    np.expm1(negative, out=negative)
+    """ELU in place: ``max(x, 0) + alpha * (exp(min(x, 0)) - 1)`` (:func:`exp`, in float64: no overflow for large
+    x, and the subtraction's cancellation near 0 costs nothing at float32)."""
+    negative = np.minimum(x, 0.0).astype(np.float64)
+    negative = exp(negative) - 1.0
     if alpha != 1.0:
         negative *= alpha
     np.maximum(x, 0.0, out=x)
-    x += negative
+    x += negative.astype(x.dtype, copy=False)
     return x
 
 
@@ -39,9 +93,15 @@ def _selu(x: np.ndarray) -> np.ndarray:
 
 
 def _gelu(x: np.ndarray, approximate: str = "none") -> np.ndarray:
-    """GELU through torch's own kernel on a zero-copy view (one call; numpy has no vectorized erf, and scipy's
-    took twice as long as torch's for the encoder's 10 x 256 activations)."""
-    return functional.gelu(torch.from_numpy(x), approximate=approximate).numpy()
+    """GELU: ``x / 2 (1 + erf(x / sqrt 2))``, or with ``approximate="tanh"`` torch's tanh form (:func:`erf`,
+    :func:`_tanh`; torch's own kernel differs between CPUs)."""
+    x64 = np.asarray(x, dtype=np.float64)
+    if approximate == "tanh":
+        inner = math.sqrt(2.0 / math.pi) * (x64 + 0.044715 * x64 * x64 * x64)
+        value = 0.5 * x64 * (1.0 + _tanh(inner))
+    else:
+        value = 0.5 * x64 * (1.0 + erf(x64 * (1.0 / math.sqrt(2.0))))
+    return value.astype(x.dtype, copy=False)
 
 
 def _relu(x: np.ndarray) -> np.ndarray:
@@ -49,7 +109,9 @@ def _relu(x: np.ndarray) -> np.ndarray:
 
 
 def _tanh(x: np.ndarray) -> np.ndarray:
-    return np.tanh(x, out=x)
+    """tanh x = 1 - 2 / (e^(2x) + 1) (:func:`exp`, in float64)."""
+    x64 = np.asarray(x, dtype=np.float64)
+    return (1.0 - 2.0 / (exp(2.0 * x64) + 1.0)).astype(x.dtype, copy=False)
 
 
 def _activation(module) -> tuple | None:
@@ -129,7 +191,7 @@ class _Dense:
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         for (weight, bias), activation in zip(self.layers, self.activations, strict=True):
-            x = x @ weight
+            x = matmul(x, weight)
             if bias is not None:
                 x += bias
             if activation is not None:

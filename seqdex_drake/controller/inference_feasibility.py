@@ -20,7 +20,6 @@ Every array has a leading model axis (weights (M, in, out), biases (M, 1, out)),
 from __future__ import annotations
 
 import copy
-import functools
 import math
 from collections.abc import Sequence
 
@@ -28,28 +27,22 @@ import numpy as np
 from torch import nn
 
 from seqdex_drake.chaining.feasibility import MlpFeasibility, TemporalFeasibility, pad_history
-from seqdex_drake.controller.inference_blocks import _Dense, _Tensors
-
-
-@functools.lru_cache(maxsize=16)
-def _averager(width: int, dtype: np.dtype) -> np.ndarray:
-    """The (width, 1) column 1 / width: ``x @ averager`` is the mean over the last axis in one BLAS call."""
-    return np.full((width, 1), 1.0 / width, dtype=dtype)
+from seqdex_drake.controller.inference_blocks import _Dense, _Tensors, exp, matmul
 
 
 def _standardize(x: np.ndarray, eps: float) -> np.ndarray:
-    """LayerNorm without its affine part: ``(x - mean) / sqrt(var + eps)`` over the last axis."""
-    averager = _averager(x.shape[-1], x.dtype)
-    centered = x - x @ averager
-    variance = (centered * centered) @ averager
+    """LayerNorm without its affine part: ``(x - mean) / sqrt(var + eps)`` over the last axis (means by numpy's
+    pairwise sums: machine-independent, see :mod:`~seqdex_drake.controller.inference_blocks`)."""
+    width = x.shape[-1]
+    centered = x - x.sum(-1, keepdims=True) / x.dtype.type(width)
+    variance = (centered * centered).sum(-1, keepdims=True) / x.dtype.type(width)
     variance += eps
     centered /= np.sqrt(variance, out=variance)
     return centered
 
 
 def _softmax(x: np.ndarray) -> np.ndarray:
-    x = x - x.max(-1, keepdims=True)
-    np.exp(x, out=x)
+    x = exp(x - x.max(-1, keepdims=True))
     x /= x.sum(-1, keepdims=True)
     return x
 
@@ -61,7 +54,7 @@ def _fold_norm(norm: nn.LayerNorm, weight: np.ndarray, bias: np.ndarray | None) 
     w, b = (tensor.detach().cpu().double().numpy() for tensor in (norm.weight, norm.bias))
     W = weight.astype(np.float64)
     c = np.zeros((1, 1, W.shape[-1])) if bias is None else bias.astype(np.float64)
-    return np.ascontiguousarray(w[:, None] * W, dtype=dtype), (b @ W + c).astype(dtype)
+    return np.ascontiguousarray(w[:, None] * W, dtype=dtype), (matmul(b, W) + c).astype(dtype)
 
 
 class _EncoderLayer:
@@ -101,18 +94,19 @@ class _EncoderLayer:
         (M, 1, width) is computed (every token still serves as key and value)."""
         batch, steps, _ = x.shape
         if last_only:
-            query = x[:, -1:] @ self.query[0]
+            query = matmul(x[:, -1:], self.query[0])
             query += self.query[1]
-            key_value = x @ self.key_value[0]
+            key_value = matmul(x, self.key_value[0])
             key_value += self.key_value[1]
         else:
-            key_value = x @ self.projection[0]
+            key_value = matmul(x, self.projection[0])
             key_value += self.projection[1]
             query, key_value = key_value[..., :self.width], key_value[..., self.width:]
         rows = query.shape[1]
         query = query.reshape(batch, rows, self.heads, -1).transpose(0, 2, 1, 3)  # (M, heads, rows, head)
         key_value = key_value.reshape(batch, steps, 2, self.heads, -1).transpose(2, 0, 3, 1, 4)
-        mixed = _softmax(query @ key_value[0].transpose(0, 1, 3, 2)) @ key_value[1]  # (M, heads, rows, head)
+        scores = _softmax(matmul(query, key_value[0].transpose(0, 1, 3, 2)))
+        mixed = matmul(scores, key_value[1])  # (M, heads, rows, head)
         return self.out(mixed.transpose(0, 2, 1, 3).reshape(batch, rows, self.width))
 
     def __call__(self, x: np.ndarray, last_only: bool = False) -> np.ndarray:

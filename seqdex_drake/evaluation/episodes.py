@@ -65,7 +65,8 @@ def run_episode(runner: ChainRunner, config, key, seed: int, episode: int,
     result = {"success": bool(outcome.success), "time": outcome.time, "switches": outcome.switches,
               "last_stage": outcome.last_stage, "position_error": outcome.position_error,
               "rotation_error": outcome.rotation_error, "stage_entries": entries, "start": start,
-              **({"simulator_error": outcome.simulator_error} if outcome.simulator_error else {})}
+              **({"simulator_error": outcome.simulator_error} if outcome.simulator_error else {}),
+              **({"fell": True} if outcome.fell else {})}
     return result, rpy, scores
 
 
@@ -74,7 +75,8 @@ def handover_notes(family: str, results: list[dict]) -> list[str]:
     Grasp with the block upright (Orient's success: its z axis within acos(0.6) of world z) and Insert with it
     lifted at least ``HELD_LIFT`` (Grasp's); for Tool Positioning, how many reached Reorient with the tool lifted.
     For Building Blocks episodes that record their ``start``, also how many distinct (cached pile, block) starts
-    they had: with few cached piles, episodes of one block type repeat a start."""
+    they had: with few cached piles, episodes of one block type repeat a start. Then how many episodes ended with
+    the object fallen off the table (``fell``) and how many in a failed simulation (``simulator_error``)."""
     checks = {"building_blocks": [("grasp", 0, 0.6, "upright when Grasp started"),
                                   ("insert", 1, HELD_LIFT, f"lifted >= {HELD_LIFT} m when Insert started")],
               "tool_positioning": [("tool_reorient", 1, HELD_LIFT, f"lifted >= {HELD_LIFT} m when Reorient "
@@ -87,6 +89,10 @@ def handover_notes(family: str, results: list[dict]) -> list[str]:
     if starts:  # A block type's episodes on one cached pile fetch the same block: fewer independent trials.
         distinct = len({(s["pile"], s["block"]) for s in starts})
         notes.append(f"distinct starts (cached pile, block): {distinct} in {len(starts)} episodes")
+    fell = sum(1 for r in results if r.get("fell"))
+    failed = sum(1 for r in results if r.get("simulator_error"))
+    notes.append(f"object fell off the table: {fell} / {len(results)} episodes; simulation failed (diverged or "
+                 f"a failed contact solve): {failed} / {len(results)}")
     return notes
 
 

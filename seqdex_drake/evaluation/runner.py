@@ -76,6 +76,10 @@ TOOL_GOAL_LIFT = 0.15
 TOOL_HELD_LIFT = TOOL_GOAL_LIFT / 2
 #: A plant position (m, quaternion) or velocity (m/s, rad/s) this large means the simulation has diverged.
 DIVERGED = 1e3
+#: The target object's origin below this world height [m] has fallen off the table (its top is at 0.6 m in both
+#: families, and nothing lies below it: a tool the hand knocks off falls for ever, and was once stopped as a
+#: diverged simulation 14 s later). Nothing in the chain can reach it there, so the episode ends, failed.
+FELL_BELOW = 0.3
 
 
 class ChainRunError(ValueError):
@@ -115,6 +119,8 @@ class Outcome:
     rotation_error: float
     simulator_error: str = ""
     """Why the simulation failed (a failed episode, as the envs truncate one); empty if it did not."""
+    fell: bool = False
+    """The target object fell off the table (below ``FELL_BELOW``), which ended the episode, failed."""
 
 
 class ChainRunner:
@@ -344,8 +350,8 @@ class ChainRunner:
             stop_on_success: bool = True, stop_when_done: bool = True) -> Outcome:
         """Steps control periods until success (if ``stop_on_success``), ``time_limit`` simulated seconds from
         the episode's start, ``on_tick`` returning False (called after every step), the family's ``DONE_SETTLE``
-        after the chain is done (if ``stop_when_done``; :meth:`chain_done_for`), or a simulator failure (a failed
-        outcome naming it)."""
+        after the chain is done (if ``stop_when_done``; :meth:`chain_done_for`), the target object falling off the
+        table (a failed outcome with ``fell``), or a simulator failure (a failed outcome naming it)."""
         period = self.scenario.control_period
         settle = DONE_SETTLE.get(self.config.family) if stop_when_done else None
         settle_ticks = None if settle is None else int(round(settle / period))
@@ -362,6 +368,8 @@ class ChainRunner:
                                      f"the simulation diverged at t = {self.context.get_time():.3f} s (a plant "
                                      f"position or velocity beyond {DIVERGED:g})")
             self.objects.update(self.context)
+            if self.object_pose().translation()[2] < FELL_BELOW:
+                return dataclasses.replace(self._outcome(False, self.errors()), fell=True)
             if on_tick is not None and on_tick(self) is False:
                 break
             if stop_on_success and self.is_success():
