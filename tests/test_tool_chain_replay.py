@@ -5,6 +5,7 @@ fresh runner, whatever episodes the recording's worker ran before them."""
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from seqdex_drake.evaluation.episodes import run_config, run_episode
@@ -44,3 +45,18 @@ def test_recorded_episodes_replay_bit_identically(runner, seed, episode):
     result, _, _ = run_episode(runner, CONFIG, HAMMER, seed, episode, scatter=False)
     assert json.loads(json.dumps(result)) == recorded  # Every float to the last bit (JSON keeps them exactly).
 
+
+
+def test_a_tool_knocked_off_the_table_ends_the_episode_as_fallen_not_diverged(runner):
+    """Nothing below the table catches a tool: the runner ends the episode once it is below ``FELL_BELOW``, failed,
+    with ``fell`` (it used to fall for 14 s until its height passed the divergence bound)."""
+    from pydrake.math import RigidTransform
+
+    from seqdex_drake.evaluation.runner import FELL_BELOW
+
+    runner.context.SetTime(0.0)
+    name = runner.start_tool(HAMMER, np.random.default_rng(0))
+    runner.objects.set_pose(runner.context, name, RigidTransform([1.2, 0.0, 0.75]))  # Beyond the table's edge.
+    outcome = runner.run(5.0)
+    assert outcome.fell and not outcome.success and outcome.simulator_error == ""
+    assert runner.object_pose().translation()[2] < FELL_BELOW and outcome.time < 1.0
