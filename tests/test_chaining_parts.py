@@ -204,3 +204,23 @@ def test_hand_overs_draw_the_same_for_the_same_episode_seed_whatever_the_envs_di
     switcher = [ConstantF(lambda h: 0.0), ConstantF(lambda h: 0.0)]  # Restarts: stage 0 from a handed-over state.
     runs = [run_chain(envs, forward, seed=3, feasibility=switcher, max_switches=2) for envs in (stages(), used)]
     assert runs[0] == runs[1] and runs[0].switches == 2
+
+
+def test_knocked_out_transitions_knock_the_object_out_late_in_the_previous_stage():
+    """A knock-out (here: the position reset to 0) applied once, in the second half of stage 0's budget; stage 0
+    still runs to its end, and stage 1 starts from the knocked-out state (so it fails: F learns a drop)."""
+    envs = [CounterEnv(length=6, goal=3.0), CounterEnv(length=3, goal=7.0)]  # Stage 1 needs stage 0's all.
+    knocks = []
+
+    def knock_out(env, rng):
+        knocks.append(env.steps)
+        env.position = 0.0
+
+    data = collect_transitions(envs, [lambda obs: np.ones(1)] * 2, 1, episodes=2, seed=0, history=4,
+                               knocked_out=4, knock_out=knock_out)
+    assert len(data.returns) == 6 and len(knocks) == 4 and all(3 <= step <= 5 for step in knocks)
+    assert [state[1] for state in data.states] == [6] * 6  # Every source run used its whole budget.
+    np.testing.assert_array_equal([state[0] for state in data.states[2:]], [6 - step for step in knocks])
+    assert data.successes[:2].all() and not data.successes[2:].any()
+    with pytest.raises(ValueError, match="need a knock_out function"):
+        collect_transitions(envs, [lambda obs: np.ones(1)] * 2, 1, episodes=1, seed=0, knocked_out=1)

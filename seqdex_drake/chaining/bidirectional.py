@@ -48,7 +48,7 @@ from seqdex_drake.env_state import EnvState, check_handoff
 from seqdex_drake.rl.checkpoint import CheckpointError, load_checkpoint
 from seqdex_drake.rl.config import PPOConfig
 from seqdex_drake.rl.ppo import PPO
-from seqdex_drake.tasks.registry import budget_config, default_config
+from seqdex_drake.tasks.registry import KNOCK_OUTS, budget_config, default_config
 from seqdex_drake.tasks.run_config import observation_spec
 
 #: Observations kept per transition (the history ablation goes up to H = 15).
@@ -227,20 +227,26 @@ class Pipeline:
 
         return self._timed(phase, work)
 
-    def collect_transition_data(self, phase: str, index: int, intermediate: int = 0) -> dict:
+    def collect_transition_data(self, phase: str, index: int, intermediate: int = 0, knocked_out: int = 0) -> dict:
         """Chain-prefix rollouts into stage ``index``: pi^{index-1}'s terminal histories (H = 15, the longest the
         history ablation uses) with pi^{index}'s returns and successes, saved to ``transitions/<task>.npz``; and
-        ``intermediate`` early hand-overs (:func:`~seqdex_drake.chaining.rollouts.collect_transitions`)."""
+        ``intermediate`` early hand-overs and ``knocked_out`` ones with the object knocked out of the hand
+        (:func:`~seqdex_drake.chaining.rollouts.collect_transitions`; ``tasks/registry.KNOCK_OUTS``)."""
+        source = self.stages[index - 1]
+        if knocked_out and source not in KNOCK_OUTS:
+            raise ValueError(f"no knock-out is defined for {source} (have: {', '.join(KNOCK_OUTS)})")
+
         def work():
             data = collect_transitions(self.stage_envs(), self.policies(index), index,
                                        self.config.transition_episodes, self.config.seed + 104729 * index,
-                                       history=max(TRANSITION_HISTORY, self.config.history), intermediate=intermediate)
+                                       history=max(TRANSITION_HISTORY, self.config.history), intermediate=intermediate,
+                                       knocked_out=knocked_out, knock_out=KNOCK_OUTS.get(source))
             arrays = {"histories": data.histories, "returns": data.returns, "successes": data.successes,
                       "source_successes": data.source_successes}
             payload = io.BytesIO()
             np.savez(payload, **arrays)
             atomic_write(self.run.transitions(self.stages[index]), lambda file: file.write(payload.getvalue()))
-            return {"episodes": len(data.returns), "intermediate": intermediate,
+            return {"episodes": len(data.returns), "intermediate": intermediate, "knocked_out": knocked_out,
                     "target_success_rate": float(data.successes.mean()), "mean_return": float(data.returns.mean())}
 
         return self._timed(phase, work)

@@ -57,14 +57,18 @@ class StageResult:
 
 
 def run_stage(env, policy: Policy, *, seed: int | None = None, initial_state=None,
-              stop: Callable[[np.ndarray], bool] | None = None) -> StageResult:
+              stop: Callable[[np.ndarray], bool] | None = None,
+              before_step: Callable[[object, int], None] | None = None) -> StageResult:
     """Runs ``policy`` in ``env`` from a reset seeded ``seed`` (from ``initial_state`` if given; seed it too, see
     :func:`handover_seed`) until its time budget, a failure, or ``stop(observations so far)`` is true (the
-    switcher's early hand-over)."""
+    switcher's early hand-over). ``before_step(env, step)``, if given, may change the scene before each step
+    (e.g. knock the object out of the hand); the policy then acts on the observation taken before it."""
     options = None if initial_state is None else {"initial_state": initial_state}
     observation, info = env.reset(seed=seed, options=options)
     observations, total, failed = [observation], 0.0, False
     while True:
+        if before_step is not None:
+            before_step(env, len(observations) - 1)
         observation, reward, terminated, truncated, info = env.step(policy(observation))
         observations.append(observation)
         total += reward
@@ -105,7 +109,8 @@ class Transitions:
 
 
 def collect_transitions(envs: Sequence, policies: Sequence[Policy], target: int, episodes: int, seed: int,
-                        history: int = 10, intermediate: int = 0) -> Transitions:
+                        history: int = 10, intermediate: int = 0, knocked_out: int = 0,
+                        knock_out: Callable[[object, np.random.Generator], None] | None = None) -> Transitions:
     """Runs the chain prefix ``0 .. target`` ``episodes`` times (episode ``e`` seeded ``seed + e``), handing each
     stage's final state to the next, and records pi^{target-1}'s last ``history`` observations with
     pi^{target}'s return and success (successes and failures alike: F must learn both).
@@ -113,21 +118,35 @@ def collect_transitions(envs: Sequence, policies: Sequence[Policy], target: int,
     ``intermediate`` more episodes (seeded ``seed + episodes + e``) hand over early, after a uniformly drawn
     number of pi^{target-1}'s steps (1 .. its budget - 1): the switcher scores F on every tick of stage
     ``target - 1``, so an F meant for switching must also have seen the states before that stage's end (from which
-    pi^{target} mostly fails) rather than extrapolate to them from terminal states alone."""
+    pi^{target} mostly fails) rather than extrapolate to them from terminal states alone.
+
+    ``knocked_out`` more episodes (seeded ``seed + episodes + intermediate + e``) run pi^{target-1} to its end with
+    ``knock_out(env, rng)`` applied after a uniformly drawn number of its steps (its second half): the object
+    knocked out of the hand, so F also knows a dropped object, from which the switcher should go back rather
+    than on (the paper's recovery)."""
+    if knocked_out and knock_out is None:
+        raise ValueError("knocked_out episodes need a knock_out function (e.g. tasks.tools_common.knock_out_tool)")
     if not 1 <= target < len(envs):
         raise ValueError(f"target must be in [1, {len(envs) - 1}] (F^1 does not exist), got {target}")
     rows = {key: [] for key in ("histories", "returns", "successes", "source_successes", "states", "first")}
-    cuts = np.random.default_rng([seed, target]).integers(1, envs[target - 1].config.episode_length,
-                                                          size=intermediate)
-    for episode in range(episodes + intermediate):
+    length = envs[target - 1].config.episode_length
+    cuts = np.random.default_rng([seed, target]).integers(1, length, size=intermediate)
+    knocks = np.random.default_rng([seed, target, 1]).integers(length // 2, length, size=knocked_out)
+    for episode in range(episodes + intermediate + knocked_out):
         if episode < episodes:
             result = run_prefix(envs, policies, target - 1, seed + episode)
-        else:
+        elif episode < episodes + intermediate:
             cut = int(cuts[episode - episodes])
-            before = None if target == 1 else run_prefix(envs, policies, target - 2, seed + episode).state
-            result = run_stage(envs[target - 1], policies[target - 1], initial_state=before,
-                               seed=seed + episode if target == 1 else handover_seed(seed + episode, target - 1),
-                               stop=lambda observations, cut=cut: len(observations) > cut)
+            result = _source_run(envs, policies, target, seed + episode,
+                                 stop=lambda observations, cut=cut: len(observations) > cut)
+        else:
+            at, rng = int(knocks[episode - episodes - intermediate]), np.random.default_rng([seed, episode])
+
+            def knock(env, step, at=at, rng=rng):
+                if step == at:
+                    knock_out(env, rng)
+
+            result = _source_run(envs, policies, target, seed + episode, before_step=knock)
         state = result.state
         nxt = run_stage(envs[target], policies[target], initial_state=state, seed=handover_seed(seed + episode, target))
         rows["histories"].append(pad_history(result.observations, history))
@@ -138,6 +157,14 @@ def collect_transitions(envs: Sequence, policies: Sequence[Policy], target: int,
         rows["first"].append(nxt.observations[0])
     return Transitions(np.stack(rows["histories"]), np.array(rows["returns"]), np.array(rows["successes"]),
                        np.array(rows["source_successes"]), rows["states"], np.stack(rows["first"]))
+
+
+def _source_run(envs: Sequence, policies: Sequence[Policy], target: int, seed: int, **run) -> StageResult:
+    """Stage ``target - 1``'s run of the episode seeded ``seed`` (from the chain prefix before it), with
+    :func:`run_stage`'s ``stop`` / ``before_step`` in ``run``."""
+    before = None if target == 1 else run_prefix(envs, policies, target - 2, seed).state
+    return run_stage(envs[target - 1], policies[target - 1], initial_state=before,
+                     seed=seed if target == 1 else handover_seed(seed, target - 1), **run)
 
 
 @dataclasses.dataclass

@@ -3,7 +3,7 @@
     seqdex pipeline --chain handover --method seqdex [--stage-steps N] [--finetune-steps N] [--iterations M]
                     [--preset paper|budget] [--init TASK=CHECKPOINT ...] [--num-envs N]
     seqdex feasibility --run-dir RUN --task lower [--history H] [--no-temporal]
-                       [--recollect [--intermediate N] [--scene TASK=SCENARIO ...]]
+                       [--recollect [--intermediate N] [--knocked-out N] [--scene TASK=SCENARIO ...]]
                        [--d-model W] [--heads N] [--layers L] [--feedforward W]
     seqdex finetune --run-dir RUN
 
@@ -30,7 +30,7 @@ from seqdex_drake.chaining.pipeline import METHODS, PipelineConfig, PipelineErro
 from seqdex_drake.chaining.stage_envs import default_env_kit
 from seqdex_drake.cli import CliError
 from seqdex_drake.scenario import LoadScenario, ScenarioError
-from seqdex_drake.tasks.registry import task_names
+from seqdex_drake.tasks.registry import KNOCK_OUTS, task_names
 from seqdex_drake.tasks.run_config import PRESETS
 
 METHOD_HELP = ("seqdex (ours), seqdex_no_temporal (F without history), policy_seq (forward only), tstar "
@@ -86,6 +86,10 @@ def add_parsers(commands) -> None:
     feasibility.add_argument("--intermediate", type=int, default=0, metavar="N",
                              help="with --recollect: N more rollouts that hand over after a random number of the "
                              "previous stage's steps, so F also knows the states the switcher scores mid-stage")
+    feasibility.add_argument("--knocked-out", type=int, default=0, metavar="N",
+                             help="with --recollect: N more rollouts whose object is knocked out of the hand late in "
+                             "the previous stage (tool Grasp: the tool back on the table), so F knows a dropped "
+                             "object and the switcher goes back for it")
     feasibility.add_argument("--scene", action="append", default=[], metavar="TASK=SCENARIO",
                              help="with --recollect: run stage TASK (this one or an earlier one) on this station "
                              "scenario, e.g. orient=building_blocks/search (Orient in the whole pile, as the "
@@ -225,8 +229,12 @@ def run_feasibility(args) -> int:
             raise CliError(f"{pipeline.run.policy(task)} is missing; run seqdex pipeline on {args.run_dir} first")
     if args.folds < 0 or args.folds == 1:
         raise CliError(f"--folds takes 0 (none) or K >= 2, got {args.folds}")
-    if args.intermediate < 0 or (args.intermediate and not args.recollect):
-        raise CliError("--intermediate takes a count >= 0 and needs --recollect")
+    for flag, count in (("--intermediate", args.intermediate), ("--knocked-out", args.knocked_out)):
+        if count < 0 or (count and not args.recollect):
+            raise CliError(f"{flag} takes a count >= 0 and needs --recollect")
+    if args.knocked_out and pipeline.stages[index - 1] not in KNOCK_OUTS:
+        raise CliError(f"--knocked-out: no knock-out is defined for {pipeline.stages[index - 1]}, the stage before "
+                       f"{args.task} (defined for: {', '.join(KNOCK_OUTS)})")
     scenes = _scenes(args.scene, pipeline.stages[:index + 1], args.task, args.recollect)
     for task, scene in scenes.items():
         position = pipeline.stages.index(task)
@@ -240,9 +248,11 @@ def run_feasibility(args) -> int:
         raise CliError(f"bad F architecture: {error}") from error
     try:
         if args.recollect:  # Its own phase name: an interrupted recollection resumes, a finished one is kept.
-            phase = f"transitions_recollect_{args.task}_i{args.intermediate}" + "".join(
+            phase = f"transitions_recollect_{args.task}_i{args.intermediate}" + (
+                f"_k{args.knocked_out}" if args.knocked_out else "") + "".join(
                 f"_{task}@{scene.replace('/', '-')}" for task, scene in sorted(scenes.items()))
-            pipeline.collect_transition_data(phase, index, intermediate=args.intermediate)
+            pipeline.collect_transition_data(phase, index, intermediate=args.intermediate,
+                                             knocked_out=args.knocked_out)
         elif not pipeline.run.transitions(args.task).is_file():
             pipeline.collect_transition_data(f"transitions_cli_{args.task}", index)
         temporal = not args.no_temporal and args.history > 0
@@ -258,6 +268,7 @@ def run_feasibility(args) -> int:
         # On the record, so what a shipped F was fitted on is known (seqdex ship copies pipeline.json's summary).
         pipeline.run.finish(f"feasibility_cli_{args.task}_h{outcome['history']}",
                             dict(outcome, out=str(out), recollected=args.recollect, intermediate=args.intermediate,
+                                 knocked_out=args.knocked_out,
                                  scenes=scenes))
     except RuntimeError as error:
         raise CliError(str(error), code=1) from error

@@ -59,7 +59,7 @@ from seqdex_drake.tasks.blocks_common import accessibility_order
 from seqdex_drake.tasks.insert import YAW_FLIP
 from seqdex_drake.tasks.registry import default_config
 from seqdex_drake.tasks.rewards import quaternion_angle
-from seqdex_drake.tasks.tools_common import TABLE_TOP, TOOL_XY
+from seqdex_drake.tasks.tools_common import HELD_LIFT, TABLE_TOP, TOOL_XY
 
 #: Task family -> station scenario.
 SCENARIOS = {"building_blocks": "building_blocks/chain", "tool_positioning": "tool_positioning/tool_grasp"}
@@ -72,8 +72,9 @@ TOOL_TOLERANCE = 0.5
 #: Where a tool's goal is: lifted this far above its start, held in hand.
 TOOL_GOAL_LIFT = 0.15
 #: A tool counts as held (the paper: "lifted and held in hand") while its origin is at least this far above its
-#: start height: half the goal's lift, so a tool lying on the table (or dropped onto it) never succeeds.
-TOOL_HELD_LIFT = TOOL_GOAL_LIFT / 2
+#: start height: half the goal's lift, so a tool lying on the table (or dropped onto it) never succeeds. Tool
+#: Reorient's success uses the same (``tasks/tools_common.HELD_LIFT``), so F learns what the chain counts.
+TOOL_HELD_LIFT = HELD_LIFT
 #: A plant position (m, quaternion) or velocity (m/s, rad/s) this large means the simulation has diverged.
 DIVERGED = 1e3
 #: The target object's origin below this world height [m] has fallen off the table (its top is at 0.6 m in both

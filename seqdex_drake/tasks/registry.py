@@ -2,7 +2,7 @@
 
 import sys
 
-from seqdex_drake.tasks import grasp, insert, lower, orient, reach, search, tool_grasp, tool_reorient
+from seqdex_drake.tasks import grasp, insert, lower, orient, reach, search, tool_grasp, tool_reorient, tools_common
 from seqdex_drake.tasks.base import Task, TaskConfig
 
 #: name -> (default_config, Task class)
@@ -17,6 +17,10 @@ REGISTRY = {
     "reach": (reach.default_config, reach.ReachTask),
     "lower": (lower.default_config, lower.LowerTask),
 }
+
+#: Sub-task -> how the object it holds at its end is knocked out of the hand (its F's knocked-out transitions,
+#: ``seqdex feasibility --knocked-out``); the others have none.
+KNOCK_OUTS = {"tool_grasp": tools_common.knock_out_tool}
 
 
 #: The paper's six sub-tasks (Building Blocks and Tool Positioning); the others serve the hand-over chain.

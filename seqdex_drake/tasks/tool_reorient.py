@@ -13,6 +13,9 @@ tool still held, its origin within ``HELD_DISTANCE`` of the goal's (the paper: "
 ready-to-use pose"); a tool farther than that has left the hand (dropped or thrown): task failure, the episode
 terminates. The hand-off lifts the tool more than 0.1 m off the table, so a dropped tool fails this test before it
 lands; a 180 deg roll about the handle moves the origin by about 2 cm (it sits 1.2 cm off the handle's axis).
+The tool must also be lifted (``tools_common.HELD_LIFT`` above its resting height), as the whole chain judges it:
+from a hand-over before tool Grasp's lift is done (the switcher's early hand-overs) a roll in place near the table
+is not the task, and F, fitted on this success, must learn that.
 
 :func:`budget_config` is the variant that fits a small training budget (``../shared/TRAINING.md``): a residual
 policy (``tasks/residual.py``) on the searched finger gait of ``tasks/scripted/tool_reorient_gait.py``, which rolls the
@@ -29,7 +32,7 @@ from seqdex_drake.observation_layout import pose_vector
 from seqdex_drake.tasks.base import Task, TaskConfig
 from seqdex_drake.tasks.handoff import synthesized_tool_grasp
 from seqdex_drake.tasks.rewards import RewardWeights, goal_errors, goal_reward
-from seqdex_drake.tasks.tools_common import tool_name
+from seqdex_drake.tasks.tools_common import is_lifted, tool_name
 
 #: How far (m) the tool's origin may be from the goal's (its hand-off position) while held.
 HELD_DISTANCE = 0.1
@@ -78,7 +81,7 @@ class ToolReorientTask(Task):
 
     def is_success(self, env) -> bool:
         position, rotation = goal_errors(env.observation_values())
-        return rotation < self.config.success_threshold[0] and position < HELD_DISTANCE
+        return rotation < self.config.success_threshold[0] and position < HELD_DISTANCE and is_lifted(env)
 
     def is_failure(self, env) -> bool:
         """The tool left the hand: its origin is more than ``HELD_DISTANCE`` from the goal's, or below the
