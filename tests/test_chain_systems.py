@@ -138,10 +138,11 @@ def hand_built_f(history: int = 3):
 class SwitcherRig:
     """A 4-stage switcher whose F^i reads observation.<i-1>[0]; ``set(c1, c2, c3)`` fixes the scores."""
 
-    def __init__(self, max_switches=3, missing=(), budgets=(5, 5, 5, 5), every_tick=False, trigger="next"):
+    def __init__(self, max_switches=3, missing=(), budgets=(5, 5, 5, 5), every_tick=False, trigger="next",
+                 free_object=None):
         fs = [None] + [None if i in missing else hand_built_f() for i in (1, 2, 3)]
         self.switcher = FeasibilitySwitcher(fs, [2] * 4, budgets, PERIOD, SwitcherParams(
-            max_switches, evaluate_every_tick=every_tick, trigger=trigger))
+            max_switches, evaluate_every_tick=every_tick, trigger=trigger, free_object_stages=free_object))
         self.context = self.switcher.CreateDefaultContext()
         self.missing = missing
         self.set(0, 0, 0)
@@ -288,6 +289,26 @@ def test_switcher_trigger_next_waits_for_the_budget_when_only_a_later_stage_is_f
     assert rig.run() == (3, 1)
     with pytest.raises(ValueError, match="trigger"):
         SwitcherRig(trigger="sometimes")
+
+
+def test_switcher_selects_a_free_object_stage_only_while_the_object_is_not_held():
+    """Tool Grasp starts from the tool on the table: with the tool in hand a walk back to it does not switch (the
+    sequential rule applies); once the tool is down (dropped), F sending the chain back to it does."""
+    rig = SwitcherRig(budgets=(3, 3, 3, 3), free_object=(True, False, False, False))
+    held = rig.switcher.GetInputPort("object_held")
+    held.FixValue(rig.context, [1.0])
+    rig.set(0.0, 0.0, 0.0)  # Nothing feasible at stage 0's budget end: would restart stage 0, but it is held.
+    assert [rig.run()[0] for _ in range(3)] == [0, 0, 1]  # the sequential advance, no switch used
+    assert rig.run(2) == (1, 0)
+    assert rig.run() == (2, 0)  # stage 1's budget end: the walk back would restart stage 0; held: advance
+    held.FixValue(rig.context, [0.0])  # Dropped: the restart happens at the next decision.
+    assert rig.run(2) == (2, 0)
+    assert rig.run() == (0, 1)
+    rig.set(2.0, 0.0, 0.0)  # A stage without the flag is selected whether held or not.
+    held.FixValue(rig.context, [1.0])
+    assert rig.run() == (1, 2)
+    with pytest.raises(ValueError, match="free_object_stages needs one flag per stage"):
+        SwitcherRig(free_object=(True,))
 
 
 def test_switcher_every_tick_mode_counts_changes_only():

@@ -2,7 +2,9 @@
 over to tool Reorient, is knocked out of the hand onto the table a few ticks into Reorient; at the end of Reorient's
 budget the trained F^reorient scores the state infeasible (c < 1) and the chain goes back to tool Grasp (paper
 Sec. 3.3: a dropped object sends the chain back to the stage that picks it up). The F was fitted with knocked-out
-hand-overs (``seqdex feasibility --knocked-out``)."""
+hand-overs (``seqdex feasibility --knocked-out``). While the hammer is in hand the approach target reports it lifted,
+which keeps the switcher from sending the chain back to tool Grasp with the hammer in the fist
+(``ChainParams.free_object_stages``)."""
 
 from pathlib import Path
 
@@ -28,6 +30,11 @@ def _stage(runner) -> int:
     return int(runner.chain_output("active_stage")[0])
 
 
+def _lifted(runner) -> bool:
+    approach = runner.controller.GetSubsystemByName("approach_target")
+    return bool(approach.GetOutputPort("object_lifted").Eval(approach.GetMyContextFromRoot(runner.context))[0])
+
+
 def test_a_hammer_knocked_out_of_the_hand_sends_the_chain_back_to_tool_grasp(runner):
     runner.context.SetTime(0.0)
     name = runner.start_tool(HAMMER, np.random.default_rng([SEED, HAMMER, EPISODE]))
@@ -36,11 +43,13 @@ def test_a_hammer_knocked_out_of_the_hand_sends_the_chain_back_to_tool_grasp(run
                          on_tick=lambda r: not ticks_in_reorient.append(_stage(r) == 1) and sum(ticks_in_reorient) < 5)
     assert sum(ticks_in_reorient) == 5 and outcome.simulator_error == "", "the hammer never reached tool Reorient"
     lifted = runner.object_pose().translation()[2]
+    assert _lifted(runner)  # In hand: a switch back to tool Grasp would be blocked (free_object_stages).
     switches = int(runner.chain_output("switches_used")[0])
     # Knocked out: back on the table (as it started, a little aside), the hand where it is.
     runner.objects.set_pose(runner.context, name, RigidTransform(RollPitchYaw(0.0, 0.0, 0.3),
                                                                  [TOOL_XY[0] + 0.02, TOOL_XY[1], TABLE_TOP + 0.0725]),
                             frozen=False)
+    assert not _lifted(runner)
     stages = []
     runner.run(runner.episode_limit(), stop_on_success=False,
                on_tick=lambda r: not stages.append(_stage(r)) and stages[-1] == 1)

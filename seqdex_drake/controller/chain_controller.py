@@ -109,6 +109,10 @@ class ChainParams:
     (:class:`~seqdex_drake.controller.chain_parts.ApproachTarget`, ``StageRouter(hold_hand=)``). Block Insert: from
     Grasp's lift (about 1.1 m, anywhere over the box) to the baseplate is more than its 125 steps at the wrist's
     0.3 m/s."""
+    free_object_stages: tuple[str, ...] = ()
+    """Tasks whose stage a feasibility switch may select only while the target object is not lifted in hand
+    (``SwitcherParams.free_object_stages``, from ``ApproachTarget``'s ``object_lifted``; the target's
+    ``rest_height``, :func:`SetChainTarget`). Tool Grasp: it starts from the tool on the table."""
     carry_goal_symmetry: float = 0.0
     """If > 0, the carry also turns the hand until the held object takes its goal's orientation, the goal counting
     the same turned about its z by multiples of this angle [rad], and the stage's wrist IK keeps that turn
@@ -226,15 +230,17 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
     # A stage that observes its progress: its F reads histories with the progress appended (the switcher adds it).
     time_steps = tuple(config.episode_length if config.observe_time else 0 for config in configs)
     carry = dict(params.carry_stages)
-    unknown = sorted((set(params.approach_stages) | set(carry)) - set(tasks))
+    unknown = sorted((set(params.approach_stages) | set(carry) | set(params.free_object_stages)) - set(tasks))
     if unknown:
-        raise ValueError(f"ChainParams.approach_stages / carry_stages name {unknown}, not stages of this chain "
+        raise ValueError(f"ChainParams.approach_stages / carry_stages / free_object_stages name {unknown}, not stages "
+                         f"of this chain "
                          f"({', '.join(tasks)})")
     f_files = [_load_f(i, tasks, entry, [size + (1 if t else 0) for size, t in zip(sizes, time_steps, strict=True)])
                for i, entry in enumerate(feasibility)]
     switcher_params = dataclasses.replace(params.switcher, inference=params.inference, time_steps=time_steps,
                                           approach_on_entry=tuple(task in params.approach_stages or task in carry
-                                                                  for task in tasks))
+                                                                  for task in tasks),
+                                          free_object_stages=tuple(task in params.free_object_stages for task in tasks))
     switcher = builder.AddNamedSystem("switcher", FeasibilitySwitcher(
         f_files, sizes, [config.episode_length for config in configs], period, switcher_params))
     osc_params = params.osc or OscParams(p_PalmPc_Palm=tuple(p_PalmHc_Palm), hover_height=configs[0].hover_height,
@@ -292,6 +298,8 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
     builder.Connect(switcher.GetOutputPort("active_stage"), router.GetInputPort("stage"))
     builder.Connect(osc.GetOutputPort("approach_active"), router.GetInputPort("approach_active"))
     builder.Connect(switcher.GetOutputPort("active_stage"), approach.GetInputPort("stage"))
+    if params.free_object_stages:
+        builder.Connect(approach.GetOutputPort("object_lifted"), switcher.GetInputPort("object_held"))
     builder.Connect(approach.GetOutputPort("target_position"), osc.GetInputPort("target_position"))
     if params.carry_goal_symmetry > 0.0:
         builder.Connect(approach.GetOutputPort("hold_rotation"), osc.GetInputPort("hold_rotation"))
@@ -342,14 +350,20 @@ def ConnectChainController(builder: DiagramBuilder, station: Diagram, controller
 
 
 def SetChainTarget(controller: Diagram, root_context: Context, object_body: int, goal: np.ndarray | None = None,
-                   label: int | None = None, approach_offset=None) -> None:
+                   label: int | None = None, approach_offset=None, rest_height: float | None = None) -> None:
     """Sets the chain's target in ``root_context`` (the context of the Diagram holding ``controller``, or of
     ``controller`` itself): the target object's body index in the station's plant (e.g.
     ``int(plant.GetBodyByName("block_2").index())``), its goal pose ``[x, y, z, qw, qx, qy, qz]`` (stages
     with a goal: Insert, tool Reorient; also the approach target of those stages) and its render label
     (default: the body index, which is how the station's plant labels geometry). ``approach_offset`` (3, m, world):
-    where the approach aims relative to the object's centre of mass in stages without a goal (default 0)."""
+    where the approach aims relative to the object's centre of mass in stages without a goal (default 0).
+    ``rest_height`` (m): the world height of the object's centre of mass at rest, where it starts (default: unknown;
+    ``ChainParams.free_object_stages`` then never block a switch)."""
     target = ObservationTarget(object_body=int(object_body), label=int(object_body if label is None else label))
+    if rest_height is not None:
+        if not np.isfinite(rest_height):
+            raise ValueError(f"rest_height must be a finite height (m), got {rest_height}")
+        target.rest_height = float(rest_height)
     if approach_offset is not None:
         offset = np.asarray(approach_offset, dtype=float)
         if offset.shape != (3,) or not np.all(np.isfinite(offset)):

@@ -136,9 +136,13 @@ class ApproachTarget(LeafSystem):
     that Grasp's jaws turned 10-15 deg in the pinch, or tilted along its length, comes down with its tubes on the
     plate's stud tops.
 
+    Output ``object_lifted`` (1) is 1 while the target object's centre of mass is more than ``lifted_above`` over
+    the height it rested at (the target's ``rest_height``; never with NaN): the object is in hand, not where a
+    stage that picks it up can start (``SwitcherParams.free_object_stages``).
+
     Input ports: ``body_poses`` (the station's), ``stage`` (1). Output ports: ``target_position`` (3),
-    ``hold_rotation`` (9). The chain target is an abstract parameter (:meth:`set_target`), shared with the
-    observation assemblers.
+    ``hold_rotation`` (9), ``object_lifted`` (1). The chain target is an abstract parameter (:meth:`set_target`),
+    shared with the observation assemblers.
 
     Args:
         plant: the station's plant (body centres of mass; not kept).
@@ -148,11 +152,13 @@ class ApproachTarget(LeafSystem):
         goal_symmetry: turns [rad] about the goal's z that leave it the same, for the carry's orientation; 0: the
             carry does not turn the hand.
         R_WP_hold: the palm orientation held otherwise, needed with a ``goal_symmetry``.
+        lifted_above: how far (m) over its rest height the object counts as lifted.
     """
 
     def __init__(self, plant: MultibodyPlant, stage_has_goal: list[bool], carry_heights=None, hand=None,
-                 goal_symmetry: float = 0.0, R_WP_hold: RotationMatrix | None = None):
+                 goal_symmetry: float = 0.0, R_WP_hold: RotationMatrix | None = None, lifted_above: float = 0.075):
         super().__init__()
+        self._lifted_above = float(lifted_above)
         self._p_BoBcm = [plant.get_body(BodyIndex(i)).default_com() for i in range(plant.num_bodies())]
         self._has_goal = [bool(g) for g in stage_has_goal]
         self._carry = np.full(len(self._has_goal), np.nan) if carry_heights is None else \
@@ -177,6 +183,7 @@ class ApproachTarget(LeafSystem):
         self._target_index = self.DeclareAbstractParameter(AbstractValue.Make(ObservationTarget()))
         self.DeclareVectorOutputPort("target_position", 3, self._calc)
         self.DeclareVectorOutputPort("hold_rotation", 9, self._calc_rotation)
+        self.DeclareVectorOutputPort("object_lifted", 1, self._calc_lifted)
 
     def set_target(self, context: Context, target: ObservationTarget) -> None:
         if not 0 <= target.object_body < len(self._p_BoBcm):
@@ -206,6 +213,14 @@ class ApproachTarget(LeafSystem):
             return
         X_WB = self._poses_port.Eval(context)[target.object_body]
         output.SetFromVector(X_WB @ self._p_BoBcm[target.object_body] + target.approach_offset)
+
+    def _calc_lifted(self, context: Context, output: BasicVector) -> None:
+        target = self.target(context)
+        lifted = False
+        if target.object_body >= 0 and np.isfinite(target.rest_height):
+            X_WB = self._poses_port.Eval(context)[target.object_body]
+            lifted = (X_WB @ self._p_BoBcm[target.object_body])[2] > target.rest_height + self._lifted_above
+        output.SetAtIndex(0, float(lifted))
 
     def _held(self, context: Context, stage: int) -> tuple[RigidTransform, RigidTransform] | None:
         """(X_WPalm, X_WO) while carry stage ``stage`` has the target object in hand (its origin within

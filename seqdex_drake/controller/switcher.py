@@ -89,13 +89,20 @@ class SwitcherParams:
     """Per stage, whether a sequential advance into it restarts the approach (output ``stage_epoch`` changes):
     the hand is brought back to the hover point its policy's resets start from. A feasibility switch always
     restarts it. None: no stage's."""
+    free_object_stages: tuple[bool, ...] | None = None
+    """Per stage, whether a feasibility switch may select it only while the target object is free (input
+    ``object_held`` at most 0.5). Tool Grasp starts with the tool on the table: a switch back to it with the tool
+    still in the fist (the policy cannot put it down) made the approach chase the held tool off the workspace. A
+    switch that would select such a stage then does not happen and the sequential rule applies; a dropped tool is
+    free, so F sending the chain back for it still switches. None: no stage's."""
 
 
 class FeasibilitySwitcher(LeafSystem):
     """Chooses the executing stage from the feasibility scores c^i = F^i / h^i (see the module docstring).
 
     Input ports: ``observation.<i>`` for every stage i whose successor has an F (stage i's observation, the
-    history F^{i+1} reads), ``stage_success`` (1, optional), ``approach_active`` (1, optional).
+    history F^{i+1} reads), ``stage_success`` (1, optional), ``approach_active`` (1, optional), ``object_held``
+    (1, optional: ``SwitcherParams.free_object_stages``).
     Output ports: ``active_stage`` (1, the stage index 0..K-1 to execute), ``feasibility_scores`` (K, c^i;
     NaN for stage 0 and stages without F), ``switches_used`` (1), ``stage_epoch`` (1: changes whenever a stage
     starts from the hover point: a feasibility switch, or a sequential advance into a stage flagged in
@@ -136,6 +143,10 @@ class FeasibilitySwitcher(LeafSystem):
         if len(entry) != count:
             raise ValueError(f"approach_on_entry needs one flag per stage ({count}), got {params.approach_on_entry}")
         self._approach_on_entry = entry
+        free = [False] * count if params.free_object_stages is None else [bool(f) for f in params.free_object_stages]
+        if len(free) != count:
+            raise ValueError(f"free_object_stages needs one flag per stage ({count}), got {params.free_object_stages}")
+        self._free_object = free
         self._time_steps = [0] * count if params.time_steps is None else [int(t) for t in params.time_steps]
         if len(self._time_steps) != count or min(self._time_steps) < 0:
             raise ValueError(f"time_steps needs one entry >= 0 per stage ({count}), got {params.time_steps}")
@@ -163,6 +174,7 @@ class FeasibilitySwitcher(LeafSystem):
         self._build_bank()
         self._success_port = self.DeclareVectorInputPort("stage_success", 1)
         self._approach_port = self.DeclareVectorInputPort("approach_active", 1)
+        self._held_port = self.DeclareVectorInputPort("object_held", 1)
         self._status_index = self.DeclareDiscreteState(np.zeros(3))  # stage, steps in stage, switches used
         self._scores_index = self.DeclareDiscreteState(np.full(count, np.nan))
         self._entries_index = self.DeclareDiscreteState(np.zeros(1))  # Sequential advances into approach stages.
@@ -240,10 +252,11 @@ class FeasibilitySwitcher(LeafSystem):
         return [stage + 1] if stage + 1 < self.num_stages else [stage]  # The last stage: its own F.
 
     def decide(self, stage: int, steps: int, switches: int, scores: np.ndarray,
-               success: bool, full_scores=None) -> tuple[int, bool, bool]:
+               success: bool, full_scores=None, held: bool = False) -> tuple[int, bool, bool]:
         """The rule of the module docstring: (next stage, whether the stage restarts its clock, whether the
         decision is a feasibility switch). ``scores`` are this tick's (at least :meth:`tick_stages`');
-        ``full_scores()``, when given, returns every stage's for the walk back (default: ``scores``)."""
+        ``full_scores()``, when given, returns every stage's for the walk back (default: ``scores``); ``held``:
+        the target object is in hand, so stages in ``free_object_stages`` cannot be switched to."""
         last = self.num_stages - 1
         budget_done = success or steps >= self._budgets[stage]
         may_switch = switches < self._params.max_switches
@@ -251,10 +264,12 @@ class FeasibilitySwitcher(LeafSystem):
         judged = self._feasibility[min(stage + 1, last)] is not None
         forward = judged and bool(np.any(scores[stage + 1:] > 1.0))  # a later stage is feasible (NaN is not)
         if may_switch and judged and (forward or budget_done):
-            return walk_back(scores if full_scores is None else full_scores()), True, True
-        if may_switch and judged and self._params.evaluate_every_tick:
+            target = walk_back(scores if full_scores is None else full_scores())
+            if not (held and self._free_object[target]):
+                return target, True, True
+        elif may_switch and judged and self._params.evaluate_every_tick:
             target = walk_back(scores)
-            if target != stage:
+            if target != stage and not (held and self._free_object[target]):
                 return target, True, True
         if budget_done:
             return min(stage + 1, last), stage < last, False
@@ -299,7 +314,8 @@ class FeasibilitySwitcher(LeafSystem):
         else:
             steps += 1
             success = self._success_port.HasValue(context) and self._success_port.Eval(context)[0] > 0.5
-            target, restart, switched = self.decide(stage, steps, switches, fresh, bool(success), full_scores)
+            held = self._held_port.HasValue(context) and self._held_port.Eval(context)[0] > 0.5
+            target, restart, switched = self.decide(stage, steps, switches, fresh, bool(success), full_scores, held)
         scores = context.get_discrete_state(self._scores_index).get_value().copy()
         scores[computed] = fresh[computed]  # The others keep their last computed values.
         discrete_state.set_value(self._scores_index, scores)

@@ -18,6 +18,10 @@ BLOCK_TRAVEL_HEIGHT = 0.9
 #: resets with the open hand 5 cm above the block, and Search leaves the hand 14-17 cm aside of it (Orient's
 #: stylus approach from there used up its 75 steps in the pile), Orient the fingertip above the block's side.
 APPROACH_STAGES = {"building_blocks": ("orient", "grasp")}
+#: Stages a feasibility switch selects only while the target object is not lifted (``ChainParams.free_object_stages``):
+#: tool Grasp starts from the tool on the table, and its policy cannot put down a tool it holds, so F^reorient
+#: scoring a held tool below 1 keeps tool Reorient (the sequential rule), while a dropped tool goes back to it.
+FREE_OBJECT_STAGES = {"tool_positioning": ("tool_grasp",)}
 #: Stages entered with the approach carrying the held block to this height (m) above its goal
 #: (``ChainParams.carry_stages``): Insert's script carries it 3 cm above its goal before it lowers it, and the way
 #: there from Grasp's lift (about 1.1 m high, anywhere over the box) was more than its 125 steps at the wrist's

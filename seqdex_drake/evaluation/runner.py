@@ -40,6 +40,7 @@ from seqdex_drake.evaluation.chain_settings import (
     CARRY_GOAL_SYMMETRY,
     CARRY_STAGES,
     DONE_SETTLE,
+    FREE_OBJECT_STAGES,
     HANDOVER_SETTLE,
     REENGAGE,
     TIMEOUT_FAMILIES,
@@ -166,6 +167,7 @@ class ChainRunner:
                              approach_stages=APPROACH_STAGES.get(config.family, ()),
                              approach_timeout=APPROACH_TIMEOUT if config.family in TIMEOUT_FAMILIES else np.inf,
                              carry_stages=CARRY_STAGES.get(config.family, ()),
+                             free_object_stages=FREE_OBJECT_STAGES.get(config.family, ()),
                              carry_goal_symmetry=CARRY_GOAL_SYMMETRY.get(config.family, 0.0))
         params.handover_angle, params.handover_speed = HANDOVER_SETTLE.get(config.family, (np.inf, np.inf))
         if config.untrained_hidden_sizes is not None:
@@ -252,13 +254,14 @@ class ChainRunner:
             plant.SetPositions(context, instance, np.asarray(q, dtype=float))
             plant.SetVelocities(context, instance, np.zeros(plant.num_velocities(instance)))
 
-    def _start(self, name: str, goal: np.ndarray, reset_robot: bool, approach_offset=None, arm_q=None) -> None:
+    def _start(self, name: str, goal: np.ndarray, reset_robot: bool, approach_offset=None, arm_q=None,
+               rest_height=None) -> None:
         if reset_robot:
             self._reset_robot(arm_q)
         self.target, self.goal = name, np.asarray(goal, dtype=float)
         body = self.objects.bodies[self.objects.index(name)]
         SetChainTarget(self.controller, self.context, int(body.index()), goal=self.goal,
-                       approach_offset=approach_offset)
+                       approach_offset=approach_offset, rest_height=rest_height)
         self.simulator.Initialize()  # Restarts the chain at stage 0 (switcher, policies, router, wrist IK).
         RefreshSampledOutputs(self.plant, self.plant_context)  # Motor torques and contacts of the start state.
         self._start_time = self.context.get_time()
@@ -306,7 +309,8 @@ class ChainRunner:
         arm_q, error = self._ik.solve(np.asarray(self.scenario.robot.arm_home), p_WH, self._R_WP_hold)
         if error > 0.01:
             raise ChainRunError(f"the hover pose above {name} ({np.round(p_WH, 3)}) is out of reach ({error:.3f} m)")
-        self._start(name, pose_vector(X_goal), reset_robot=True, approach_offset=offset, arm_q=arm_q)
+        self._start(name, pose_vector(X_goal), reset_robot=True, approach_offset=offset, arm_q=arm_q,
+                    rest_height=float((X_WT @ body.default_com())[2]))
         return name
 
     def set_completed(self, count: int) -> None:

@@ -56,6 +56,9 @@ class ObservationTarget:
     approach_offset: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
     """Where the chain's approach aims relative to the object's centre of mass (world frame, m) for stages without
     a goal pose: the point the sub-task's env hovers the hand over at reset (a tool: its top, ``height / 2`` up)."""
+    rest_height: float = float("nan")
+    """World height (m) of the target object's centre of mass where it rested at the start; NaN: unknown (the
+    object never counts as lifted, ``ApproachTarget``'s ``object_lifted``)."""
 
 
 class ObservationAssembler(LeafSystem):
