@@ -311,6 +311,18 @@ def test_switcher_selects_a_free_object_stage_only_while_the_object_is_not_held(
         SwitcherRig(free_object=(True,))
 
 
+def test_switcher_does_not_restart_the_last_stage_that_selects_itself():
+    """At the last stage's budget end, c^K > 1 means the walk back selects the last stage again: it keeps running
+    (the chain is done) instead of restarting its clock; c^K <= 1 still sends the chain back."""
+    rig = SwitcherRig(budgets=(2, 2, 2, 2))
+    rig.set(0.0, 0.0, 3.0)
+    assert rig.run(2) == (3, 1)  # stage 0's budget end: the walk back finds the last stage
+    assert rig.run(5) == (3, 1)  # its budget ends with c^3 > 1: no restart, no switch used
+    assert rig.switcher.done_for(rig.context) > 0
+    rig.set(0.0, 2.0, 0.0)  # no longer feasible from here: back to stage 2
+    assert rig.run() == (2, 2)
+
+
 def test_switcher_every_tick_mode_counts_changes_only():
     rig = SwitcherRig(every_tick=True)
     rig.set(2.0, 0.0, 0.0)
