@@ -21,10 +21,10 @@ F, or before its first computation). This is a
 feasibility switch: it counts one towards ``max_switches`` and restarts the selected stage's budget (with
 ``evaluate_every_tick`` only a change of stage counts). Two selections do not switch (the sequential rule applies
 instead): the last stage selecting itself at its budget's end (it is not restarted: the chain is done), and a stage
-flagged in ``SwitcherParams.free_object_stages`` while the object is held. Otherwise -- the cap is reached, ``max_switches = 0``,
-or the stage after the current one has no F (for the last stage: its own F; an untrained pipeline: the
-transition cannot be judged) -- the *sequential rule* applies: on budget or success the chain advances to
-the next stage; the last stage keeps running. ``max_switches = 0`` is thus plain sequential execution with
+flagged in ``SwitcherParams.free_object_stages`` while the object is held. Otherwise -- the cap is reached,
+``max_switches = 0``, or the stage after the current one has no F (for the last stage: its own F; an untrained
+pipeline: the transition cannot be judged) -- the *sequential rule* applies: on budget or success the chain
+advances to the next stage; the last stage keeps running. ``max_switches = 0`` is thus plain sequential execution with
 per-stage time budgets (Policy-Seq).
 
 While the optional ``approach_active`` input is above 0.5 (the operational-space controller moves the hand,
