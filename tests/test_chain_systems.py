@@ -333,8 +333,9 @@ def test_switcher_every_tick_mode_counts_changes_only():
 
 
 def test_switcher_stage_epoch_changes_on_switches_and_on_entering_approach_stages():
-    """``stage_epoch`` tells the approach controller to bring the hand back to the hover point: at a feasibility
-    switch, and at a sequential advance into a stage flagged ``approach_on_entry`` (not into the others)."""
+    """``stage_epoch`` tells the approach controller to bring the hand back to the hover point: on entering a stage
+    flagged ``approach_on_entry`` (not the others), and at a feasibility switch back to the executing or an earlier
+    stage; a switch forward into an unflagged stage starts it where the hand is."""
     switcher = FeasibilitySwitcher([None] * 4, [2] * 4, (2, 2, 2, 2), PERIOD, SwitcherParams(
         max_switches=0, approach_on_entry=(False, True, False, True)))
     context = switcher.CreateDefaultContext()
@@ -346,10 +347,14 @@ def test_switcher_stage_epoch_changes_on_switches_and_on_entering_approach_stage
         seen.append((int(switcher.GetOutputPort("active_stage").Eval(context)[0]),
                      int(switcher.GetOutputPort("stage_epoch").Eval(context)[0])))
     assert seen == [(0, 0), (1, 1), (1, 1), (2, 1), (2, 1), (3, 2), (3, 2), (3, 2)]
-    rig = SwitcherRig()  # No stage flagged: the epoch counts the feasibility switches.
+    rig = SwitcherRig(budgets=(2, 2, 2, 2))  # No stage flagged: only switches back restart the approach.
+    epoch = rig.switcher.GetOutputPort("stage_epoch")
     rig.set(2.0, 0.0, 0.0)
-    assert rig.run() == (1, 1)
-    assert rig.switcher.GetOutputPort("stage_epoch").Eval(rig.context)[0] == 1
+    assert rig.run() == (1, 1) and epoch.Eval(rig.context)[0] == 0  # forward: starts where the hand is
+    rig.set(2.0, 0.0, 0.0)
+    assert rig.run(2) == (1, 2) and epoch.Eval(rig.context)[0] == 1  # budget end, stage 1 selects itself: a retry
+    rig.set(0.0, 0.0, 0.0)
+    assert rig.run(2) == (0, 3) and epoch.Eval(rig.context)[0] == 2  # back to stage 0: a restart
     with pytest.raises(ValueError, match="approach_on_entry needs one flag per stage"):
         FeasibilitySwitcher([None] * 4, [2] * 4, (2,) * 4, PERIOD, SwitcherParams(approach_on_entry=(True,)))
 
