@@ -14,7 +14,7 @@ from seqdex_drake.tasks.tools_common import TABLE_TOP
 SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints" / "tool_positioning"
 #: An evaluation episode (seed, hammer, episode) in which the shipped chain succeeds (``seqdex evaluate`` seeds its
 #: episodes the same way: ``default_rng([seed, tool, episode])``).
-EPISODE = (0, 0, 7)
+EPISODE = (0, 0, 1)
 
 
 def test_the_shipped_chain_reorients_the_hammer_in_hand():
