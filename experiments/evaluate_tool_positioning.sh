@@ -3,8 +3,8 @@
 # without the feasibility switcher, Policy-Seq on the same budget, tool Grasp standalone, and the unseen tools.
 # Every row: 34 episodes x the held-out seeds 100, 101, 102 (102 episodes per tool; no tuning, checkpoint choice
 # or F fit used these seeds), the same episodes in every row. Two worker processes (the records do not depend on
-# the split). About 3 hours on two cores (a failed unseen-tool episode runs the switcher's whole 21 s budget with
-# slow contact-rich physics, ~30 s of wall-clock each). Outputs under results/tool_positioning/.
+# the split). About 45 minutes on two cores: a hammer row takes about 4 minutes, the unseen tools about 25 (slow
+# contact-rich physics), tool Grasp standalone about 10. Outputs under results/tool_positioning/.
 #
 #   bash experiments/evaluate_tool_positioning.sh [--resume]
 set -euo pipefail
