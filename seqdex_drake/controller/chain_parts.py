@@ -29,6 +29,7 @@ from seqdex_drake.controller.policy import ACTION_SIZE, HAND_SIZE
 from seqdex_drake.robots.arm_ik import PalmIK
 from seqdex_drake.sensors.observations import ObservationTarget
 from seqdex_drake.tasks.carry import CARRY_REACH, MAX_CARRY_TURN, nearest_equivalent
+from seqdex_drake.tasks.tools_common import HELD_LIFT
 
 NUM_ARM = 7
 _STAGE_COLORS = [Rgba(0.9, 0.3, 0.2, 0.8), Rgba(0.95, 0.75, 0.1, 0.8), Rgba(0.2, 0.7, 0.3, 0.8),
@@ -152,11 +153,13 @@ class ApproachTarget(LeafSystem):
         goal_symmetry: turns [rad] about the goal's z that leave it the same, for the carry's orientation; 0: the
             carry does not turn the hand.
         R_WP_hold: the palm orientation held otherwise, needed with a ``goal_symmetry``.
-        lifted_above: how far (m) over its rest height the object counts as lifted.
+        lifted_above: how far (m) over its rest height the object counts as lifted (default: the tasks'
+            ``tools_common.HELD_LIFT``, as tool Reorient's success and the chain runner judge it).
     """
 
     def __init__(self, plant: MultibodyPlant, stage_has_goal: list[bool], carry_heights=None, hand=None,
-                 goal_symmetry: float = 0.0, R_WP_hold: RotationMatrix | None = None, lifted_above: float = 0.075):
+                 goal_symmetry: float = 0.0, R_WP_hold: RotationMatrix | None = None,
+                 lifted_above: float = HELD_LIFT):
         super().__init__()
         self._lifted_above = float(lifted_above)
         self._p_BoBcm = [plant.get_body(BodyIndex(i)).default_com() for i in range(plant.num_bodies())]
