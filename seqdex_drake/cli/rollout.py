@@ -12,7 +12,8 @@ forward initialization starts the sub-task: ``--seed 0 --episodes N`` plays each
 runs the sub-task on another station scenario with those hand-offs (block Orient from Search's hand-offs in the
 whole pile, where the chain runs it, instead of alone in the box). ``--objects`` draws the reset's object from
 the named ones only (the unseen block types 6-8, say); every episode records its object, and the summary counts
-episodes and successes per object kind.
+episodes and successes per object kind. ``--reset-region staging`` puts Orient's and Grasp's block on the
+staging area, the clear table where a block taken out of the pile is set down, instead of in the box.
 The env is the task variant the policy was trained on (``--preset``, by default the one
 recorded in the run's ``config.json`` beside the checkpoint). Prints the success rate and the mean return;
 ``--out`` also writes them with every episode's seed, return, length and outcome as JSON (the path is checked to
@@ -39,6 +40,7 @@ from seqdex_drake.rl.checkpoint import CheckpointError
 from seqdex_drake.rl.policy_loading import load_policy
 from seqdex_drake.scenario import LoadScenario, ScenarioError
 from seqdex_drake.tasks.base import ResetError
+from seqdex_drake.tasks.blocks_common import RESET_REGIONS
 from seqdex_drake.tasks.registry import task_names
 from seqdex_drake.tasks.run_config import PRESETS, observation_spec, run_preset, run_residual, task_config
 
@@ -75,6 +77,9 @@ def add_parser(commands) -> None:
                              "(Orient in the whole pile, as the chain runs it); needs --initial-states from a "
                              "sub-task of that scene (the task's own resets would not find their objects there)")
     parser.add_argument("--objects", nargs="+", metavar="NAME", help=OBJECTS_HELP)
+    parser.add_argument("--reset-region", choices=RESET_REGIONS,
+                        help="where Orient's and Grasp's resets put the block: box (where they train; the default) "
+                             "or staging (the clear table area where a block taken out of the pile is set down)")
     parser.add_argument("--out", help="also write the results to this JSON file")
     parser.add_argument("--test", action="store_true", help="a tiny budget for smoke tests and CI")
 
@@ -125,7 +130,8 @@ def _scene(args) -> str | None:
     return args.scene
 
 
-def _on_scene(config, scene: str | None):
+def _on_scene(config, scene: str | None, region: str | None = None):
+    config = config if region is None else dataclasses.replace(config, reset_region=region)
     return config if scene is None else dataclasses.replace(config, scenario=scene)
 
 
@@ -142,12 +148,15 @@ def run(args) -> int:
         check_creatable(out, "--out")  # Before the rollouts, not after them.
     starts = _hand_offs(args)
     scene = _scene(args)
+    if args.reset_region and (args.task not in ("orient", "grasp") or starts is not None):
+        raise CliError("--reset-region places the block of Orient's and Grasp's own resets; "
+                       f"{'--initial-states fix the start' if starts is not None else args.task + ' has none'}")
     if args.zero_action:  # No policy: the zero action (a residual variant's script alone).
         if args.checkpoint or args.run_dir:
             raise CliError("--zero-action rolls out no policy; drop --checkpoint / --run-dir")
         preset = args.preset or "budget"
-        config = with_objects(_on_scene(task_config(args.task, args.test, preset), scene), args.task, args.objects,
-                              starts)
+        config = with_objects(_on_scene(task_config(args.task, args.test, preset), scene, args.reset_region),
+                              args.task, args.objects, starts)
         env = make_env(args.task, config)
         zeros = np.zeros(env.action_space.shape, dtype=np.float32)
         policy, checkpoint = (lambda observation: zeros), "the zero action" + (
@@ -155,8 +164,8 @@ def run(args) -> int:
     else:
         preset = args.preset or run_preset(checkpoint)
         config = with_objects(_on_scene(task_config(args.task, args.test, preset,
-                                                    residual=run_residual(checkpoint)), scene), args.task,
-                              args.objects, starts)
+                                                    residual=run_residual(checkpoint)), scene, args.reset_region),
+                              args.task, args.objects, starts)
         policy = _load(args, checkpoint)
         env = make_env(args.task, config)
         _check(args, checkpoint, policy, env)
@@ -175,7 +184,7 @@ def run(args) -> int:
     if out is not None:
         result = {"task": args.task, "checkpoint": os.fspath(checkpoint), "episodes": episodes, "seed": args.seed,
                   "preset": preset, "initial_states": args.initial_states, "scene": config.scenario,
-                  "object_types": list(config.object_types),
+                  "object_types": list(config.object_types), "reset_region": config.reset_region,
                   "test": bool(args.test),
                   "episode_length": config.episode_length,
                   "deterministic": True, **summary, "per_episode": records}

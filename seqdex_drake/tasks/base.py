@@ -45,6 +45,10 @@ class TaskConfig:
     """The paper's lambda / alpha / e0 values for this sub-task."""
     object_types: list[int] = dataclasses.field(default_factory=lambda: [1, 2, 3, 4, 5])
     """Object variants sampled at reset (block types 1-5 train, 6-8 unseen; tools by index)."""
+    reset_region: str = "box"
+    """Where a single-block reset puts its block (Orient, Grasp): "box" (the storage box, where they train) or
+    "staging" (the clear table area where a block taken out of the pile is set down;
+    ``tasks/blocks_common.STAGING_LOW``). Other tasks ignore it."""
     hover_height: float = 0.05
     """The hand centre starts this far above the target (the paper's OSC hand-over point)."""
     success_threshold: list[float] = dataclasses.field(default_factory=list)
@@ -102,6 +106,7 @@ class TaskConfig:
                 "a non-empty list of integer object variants")
         require(all(finite(t) for t in self.success_threshold), "success_threshold", "a list of finite numbers")
 
+        require(self.reset_region in ("box", "staging"), "reset_region", "'box' or 'staging'")
         require(self.residual == "" or self.residual in RESIDUAL_BASES, "residual",
                 f"'' or one of {', '.join(RESIDUAL_BASES)}")
         require(len(self.goal_yaws_deg) > 0 and all(finite(yaw) and float(yaw) % 90.0 == 0.0

@@ -1,4 +1,5 @@
-"""Placing blocks for the Building Blocks sub-tasks: stable resting poses in the box, within reach.
+"""Placing blocks for the Building Blocks sub-tasks: stable resting poses in the box, within reach, or on the
+staging area (``STAGING_LOW`` .. ``STAGING_HIGH``), the clear table between the robot's base and the baseplate.
 
 The paper's real-world protocol keeps task blocks 10 cm from the box edges; resets sample there too, and only
 where the open hand hovering 5 cm above the block fits in the box: it hovers palm down with its fingers along +x,
@@ -22,6 +23,14 @@ OPEN_HAND_REACH = 0.146 + 0.01
 #: How far (m) behind the hand centre (-x) the hovering palm must clear the near wall: resets put it in the wall
 #: for blocks at x < 0.08 m (the wall's inner face at -0.05 m), so 0.13 m plus a 1 cm clearance.
 PALM_BACK_REACH = 0.13 + 0.01
+#: The staging area: the (low, high) world xy corners of the clear table beside the box's near wall and the
+#: baseplate's near edge (x 0.07 m), where a block taken out of the pile can be set down alone. The open hand
+#: hovering over a block there clears the box's walls and the robot's base (its straight fingertips reach over the
+#: flat baseplate's near edge); the shipped Orient and Grasp, trained in the box, stand up and lift blocks there
+#: (``results/building_blocks.md``, "The staging area").
+STAGING_LOW, STAGING_HIGH = np.array([-0.05, -0.40]), np.array([0.0, -0.20])
+#: Reset regions of the single-block sub-tasks (``TaskConfig.reset_region``).
+RESET_REGIONS = ("box", "staging")
 #: Stable resting orientations (roll, pitch) of a brick: upright, upside down, on either long side.
 RESTING = {"upright": (0.0, 0.0), "upside_down": (np.pi, 0.0), "side_left": (np.pi / 2, 0.0),
            "side_right": (-np.pi / 2, 0.0)}
@@ -59,6 +68,21 @@ def reachable_region() -> tuple[np.ndarray, np.ndarray]:
 def sample_box_xy(rng: np.random.Generator) -> np.ndarray:
     """A position on the box floor in :func:`reachable_region`, where the hovering open hand must fit."""
     return rng.uniform(*reachable_region())
+
+
+def sample_reset_xy(rng: np.random.Generator, region: str = "box") -> np.ndarray:
+    """A block position in ``region`` (one of ``RESET_REGIONS``): :func:`sample_box_xy`, or uniform over the
+    staging area. The box floor and the table top are at the same height (``BOX_CENTER[2]``)."""
+    if region == "box":
+        return sample_box_xy(rng)
+    if region == "staging":
+        return rng.uniform(STAGING_LOW, STAGING_HIGH)
+    raise ValueError(f"unknown reset region {region!r}; valid regions: {', '.join(RESET_REGIONS)}")
+
+
+def in_box(p_xy: np.ndarray, margin: float = 0.0) -> bool:
+    """Whether the world xy point lies over the storage box's inner floor, grown by ``margin`` [m]."""
+    return bool(np.all(np.abs(np.asarray(p_xy)[:2] - BOX_CENTER[:2]) <= BOX_INNER_HALF + margin))
 
 
 #: A block whose centre has another block's centre within this horizontal distance (m) and more than
@@ -152,7 +176,8 @@ def accessibility_order(q_blocks: np.ndarray, candidates: list[int]) -> list[int
 
 
 def place_single_block(env, rng: np.random.Generator, orientations: list[str]) -> str:
-    """Parks every object, puts one block of a sampled type in the box, hovers the open hand above it.
+    """Parks every object, puts one block of a sampled type in the config's ``reset_region`` (the box or the
+    staging area), hovers the open hand above it.
 
     Returns the target object's name (also declared to the environment).
     """
@@ -160,7 +185,8 @@ def place_single_block(env, rng: np.random.Generator, orientations: list[str]) -
     name = block_name(block_type)
     env.objects.park(env.context)
     roll, pitch = RESTING[orientations[int(rng.integers(len(orientations)))]]
-    X_WB = resting_pose(block_type, roll, pitch, rng.uniform(-np.pi, np.pi), sample_box_xy(rng))
+    X_WB = resting_pose(block_type, roll, pitch, rng.uniform(-np.pi, np.pi),
+                         sample_reset_xy(rng, env.config.reset_region))
     env.objects.set_pose(env.context, name, X_WB, frozen=False)
     env.set_target(name)
     env.set_robot(env.hover_arm(env.object_position()), ALLEGRO_OPEN_Q)

@@ -19,11 +19,12 @@ step / 150).
 
 * Wrist (steps 0-31): ``clip((gain * (target - hand) - damping * palm displacement per step) / 0.005)`` on the
   observed hand centre, gain 0.4, as ``tasks/scripted/tool_grasp_script.py``. The goal puts C over the block's footprint
-  centre (its body origin, whatever the type), ``depth`` (2.2 cm) above its bottom; its x is held at least at
-  ``x_min`` (0.085 m): nearer the box's near wall (x = -0.05 m) the hand and the arm meet the wall, so a block
-  there is pinched off-centre, nearer the thumb. The target's height is ``z_up`` (12.5 cm above the block's
-  bottom: the curled jaws clear the studs) until the pre-grasp shape is formed and the hand is within
-  ``descend_xy`` of the goal in xy, then a funnel down to the goal. Steps 32-47 the wrist holds (0); from step 48
+  centre (its body origin, whatever the type), ``depth`` (2.2 cm) above its bottom; for a block in the box its x
+  is held at least at ``x_min`` (0.085 m): nearer the box's near wall (x = -0.05 m) the hand and the arm meet the
+  wall, so a block there is pinched off-centre, nearer the thumb (outside the box, on the staging area, no
+  bound). The target's height is ``z_up`` (12.5 cm above the block's bottom: the curled jaws clear the studs)
+  until the pre-grasp shape is formed and the hand is within ``descend_xy`` of the goal in xy, then a funnel down
+  to the goal. Steps 32-47 the wrist holds (0); from step 48
   it lifts ([0, 0, 1]): the block clears 0.30 m at about step 108 (success from there to the end; the phases'
   lift alone, from step 75, would reach it near step 135) and ends about 0.50 m up.
 * Hand. Open for steps 0-3, then (steps 4-11) to the pre-grasp shape: jaws 7 cm either side of C, i.e. 14 cm
@@ -66,6 +67,7 @@ from seqdex_drake.robots.allegro import (
     p_PalmHc_Palm,
     unscale_limits_to_action,
 )
+from seqdex_drake.scene.piles import BOX_CENTER, BOX_INNER_HALF
 from seqdex_drake.tasks.scripted.scripted_episode import play_script
 
 WRIST_STEP = 0.005
@@ -123,7 +125,8 @@ class ScriptedBlockGrasp:
         close_at, close_steps: the jaws close over steps ``close_at .. close_at + close_steps - 1``.
         squeeze: added to the flexion joints of the last closing shape [rad].
         lift_at: the script lifts the wrist ([0, 0, 1]) from this step on.
-        x_min: the hand-centre goal's least world x [m] (the near box wall).
+        x_min: the hand-centre goal's least world x [m] for a block in the box (its near wall); a block outside
+            the box (the staging area) is pinched at its centre.
         gain, damping: the wrist law's proportional gain and velocity damping.
         descend_xy, funnel: the descent starts within ``descend_xy`` [m] of the goal in xy; above, the target
             height rises ``funnel`` m per m of xy error (up to ``z_up``).
@@ -150,7 +153,8 @@ class ScriptedBlockGrasp:
         o = observation
         R_WP = rotation_matrix(o[101:105])
         goal = np.asarray(o[111:114], float) + [0.0, 0.0, self.depth] - R_WP @ (p_PalmC_Palm - p_PalmHc_Palm)
-        goal[0] = max(goal[0], self.x_min)
+        if np.all(np.abs(o[111:113] - BOX_CENTER[:2]) <= BOX_INNER_HALF):  # Only the box has a near wall.
+            goal[0] = max(goal[0], self.x_min)
         return goal, np.asarray(o[98:101], float) + R_WP @ p_PalmHc_Palm
 
     def hand_q(self, step: int) -> np.ndarray:
