@@ -80,11 +80,6 @@ def sample_reset_xy(rng: np.random.Generator, region: str = "box") -> np.ndarray
     raise ValueError(f"unknown reset region {region!r}; valid regions: {', '.join(RESET_REGIONS)}")
 
 
-def in_box(p_xy: np.ndarray, margin: float = 0.0) -> bool:
-    """Whether the world xy point lies over the storage box's inner floor, grown by ``margin`` [m]."""
-    return bool(np.all(np.abs(np.asarray(p_xy)[:2] - BOX_CENTER[:2]) <= BOX_INNER_HALF + margin))
-
-
 #: A block whose centre has another block's centre within this horizontal distance (m) and more than
 #: ``COVER_RISE`` (m) higher is covered (centres, not origins: :func:`centre_heights`).
 COVER_RADIUS, COVER_RISE = 0.05, 0.01
