@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
 # The Tool Positioning evaluation of results/tool_positioning.md, on the shipped checkpoints: the chain with and
-# without the feasibility switcher, Policy-Seq and T-STAR on the same budget, tool Grasp standalone, and the
-# unseen tools.
+# without the feasibility switcher, Policy-Seq, T-STAR and ours w/o temporal on the same budget, tool Grasp
+# standalone, and the unseen tools.
 # Every row: 34 episodes x the held-out seeds 100, 101, 102 (102 episodes per tool; no tuning, checkpoint choice
 # or F fit used these seeds), the same episodes in every row. Two worker processes (the records do not depend on
-# the split). About 50 minutes on two cores: a hammer row takes about 4 minutes, the unseen tools about 25 (slow
+# the split). About 60 minutes on two cores: a hammer row takes about 4 minutes, the unseen tools about 25 (slow
 # contact-rich physics), tool Grasp standalone about 10. Outputs under results/tool_positioning/.
 #
 #   bash experiments/evaluate_tool_positioning.sh [--resume]
@@ -33,6 +33,13 @@ done
 "$SEQDEX" evaluate "${COMMON[@]}" --episodes 34 --objects hammer \
     --run-dir checkpoints/baselines/tool_positioning_tstar --max-switches 0 --out "$OUT/eval_tstar" \
     --label "T-STAR, same budget (sequential)"
+# Ours w/o temporal on the same budget (its F an MLP on the last observation), sequential and with the switcher.
+"$SEQDEX" evaluate "${COMMON[@]}" --episodes 34 --objects hammer \
+    --run-dir checkpoints/baselines/tool_positioning_no_temporal --max-switches 0 \
+    --out "$OUT/eval_no_temporal_sequential" --label "ours w/o temporal, same budget (sequential)"
+"$SEQDEX" evaluate "${COMMON[@]}" --episodes 34 --objects hammer \
+    --run-dir checkpoints/baselines/tool_positioning_no_temporal --max-switches 3 \
+    --out "$OUT/eval_no_temporal_switcher" --label "ours w/o temporal, same budget (switcher, at most 3 switches)"
 # Tool Grasp standalone, the shipped (fine-tuned) policy, 3 x 100 episodes.
 for seed in 3000 4000 5000; do  # Held out: tool Grasp was tuned on 0, 1000, 2000.
     "$SEQDEX" rollout --task tool_grasp --checkpoint checkpoints/tool_positioning/stages/tool_grasp/best.pt \

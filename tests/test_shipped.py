@@ -123,7 +123,8 @@ def test_simulate_chain_runs_shipped_checkpoints_and_refuses_broken_ones(shipped
 
 #: The shipped checkpoint folders of the repository (``checkpoints/``), each a chain's policies and F's.
 REPOSITORY_FOLDERS = ["building_blocks", "tool_positioning", "baselines/building_blocks_policy_seq",
-                      "baselines/tool_positioning_policy_seq", "baselines/tool_positioning_tstar"]
+                      "baselines/tool_positioning_policy_seq", "baselines/tool_positioning_tstar",
+                      "baselines/tool_positioning_no_temporal"]
 
 
 def test_every_shipped_folder_of_the_repository_is_tested():
