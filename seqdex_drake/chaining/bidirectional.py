@@ -21,15 +21,9 @@ import torch
 
 from seqdex_drake.atomic import atomic_write
 from seqdex_drake.chaining.chain import ChainSpec, LoadChain
-from seqdex_drake.chaining.feasibility import (
-    SUCCESS_THRESHOLD,
-    cross_validate,
-    feasibility_targets,
-    feasibility_threshold,
-    pad_history,
-    train_feasibility,
-)
-from seqdex_drake.chaining.feasibility_io import load_feasibility, save_feasibility
+from seqdex_drake.chaining.feasibility import pad_history
+from seqdex_drake.chaining.feasibility_fit import fit_and_save
+from seqdex_drake.chaining.feasibility_io import load_feasibility
 from seqdex_drake.chaining.pipeline import (
     CHAINED_METHODS,
     EVAL_SEED,
@@ -261,38 +255,12 @@ class Pipeline:
 
     def fit_feasibility(self, index: int, history: int, temporal: bool, path, label: str | None = None,
                         folds: int = 0, **architecture) -> dict:
-        """Trains F^{index} (attention over ``history`` steps, or the MLP on the last observation) on the saved
-        transitions, sets h, and writes it to ``path``. ``label`` ("return" or "success"; default the pipeline
-        config's ``feasibility_label``) is what F regresses, and sets h: the successful returns' quantile, or
-        :data:`~seqdex_drake.chaining.feasibility.SUCCESS_THRESHOLD`. ``architecture`` overrides
-        :class:`~seqdex_drake.chaining.feasibility.FeasibilityConfig` fields (``d_model``, ``heads``, ``layers``,
-        ``feedforward``); the outcome records the ones used, the label and the validation R^2 and AUC, and with
-        ``folds`` >= 2 the out-of-fold R^2 and AUC of that many stratified folds
-        (:func:`~seqdex_drake.chaining.feasibility.cross_validate`; the F written is fitted as without)."""
-        data = self.transition_data(index)
-        source, target = self.stages[index - 1], self.stages[index]
+        """Trains F^{index} on the saved transitions, sets h and writes it to ``path``
+        (:func:`~seqdex_drake.chaining.feasibility_fit.fit_and_save`, with this run's F config and h quantile)."""
         config = dataclasses.replace(self.config.feasibility_config(), history=history if temporal else 0,
                                      temporal=temporal, **({"label": label} if label else {}), **architecture)
-        targets = feasibility_targets(data["returns"], data["successes"], config.label)
-        model, metrics = train_feasibility(data["histories"], targets, config, successes=data["successes"])
-        if folds:
-            metrics.update(cross_validate(data["histories"], targets, data["successes"], config, folds))
-        if config.label == "success":
-            threshold = SUCCESS_THRESHOLD
-        elif data["successes"].any():
-            threshold = feasibility_threshold(data["returns"], data["successes"], self.config.threshold_quantile)
-        else:  # Without a success h is undefined; the best return seen keeps c > 1 rare. Said loudly.
-            threshold = float(max(data["returns"].max(), 1e-6))
-            self.log(f"warning: no successful {target} execution in the transitions; h set to the best return "
-                     f"{threshold:.3g}, so the switcher will rarely hand over to {target}")
-        dim = data["histories"].shape[-1]
-        save_feasibility(path, model, config, threshold, observation_spec(source, dim), source_task=source,
-                         target_task=target, metrics=metrics)
-        return {"threshold": threshold, "label": config.label, "val_r2": float(metrics.get("val_r2", np.nan)),
-                "val_auc": float(metrics.get("val_auc", np.nan)), "n_val": int(metrics.get("n_val", 0)),
-                **{key: metrics[key] for key in ("cv_auc", "cv_r2", "cv_folds", "cv_n") if key in metrics},
-                "history": config.history,
-                **{name: getattr(config, name) for name in ("d_model", "heads", "layers", "feedforward")}}
+        return fit_and_save(self.transition_data(index), config, self.config.threshold_quantile, path,
+                            self.stages[index - 1], self.stages[index], folds, self.log)
 
     def transition_bonus(self, phase: str, index: int):
         """The bonus that fine-tunes pi_{index-1} toward states stage ``index`` succeeds from (None: Policy-Seq)."""
