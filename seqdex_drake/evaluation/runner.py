@@ -266,16 +266,20 @@ class ChainRunner:
         RefreshSampledOutputs(self.plant, self.plant_context)  # Motor torques and contacts of the start state.
         self._start_time = self.context.get_time()
 
-    def start_block(self, block_type: int, goal: np.ndarray, reset_robot: bool = False) -> str:
-        """Targets the next block of ``block_type`` in the pile with goal pose ``goal`` ([xyz, wxyz]); blocks far
-        from it stay frozen. Returns the block's name."""
-        name = self.pick_block(block_type)
+    def start_block(self, block_type: int, goal: np.ndarray, reset_robot: bool = False, name: str = "") -> str:
+        """Targets the next block of ``block_type`` in the pile (``name``: that block, e.g. one a retrieve set
+        down) with goal pose ``goal`` ([xyz, wxyz]); blocks far from it stay frozen. Returns the block's name."""
+        if name and not name.startswith(f"block_{block_type}_"):
+            raise ChainRunError(f"block {name!r} is not of type {block_type}; name a block_{block_type}_<k>")
+        name = name or self.pick_block(block_type)
         self._used.add(name)
         frozen = self.objects.frozen_mask(self.context)
         p = self.objects.positions(self.context)[:, 4:]
         near = np.linalg.norm(p - p[self.objects.index(name)], axis=1) <= self.scenario.freeze.active_radius
         in_box = np.all(np.abs(p[:, :2] - BOX_CENTER[:2]) <= BOX_INNER_HALF + 0.01, axis=1)
-        self.objects.set_frozen(self.context, frozen & ~(near & in_box))
+        wake = near & in_box
+        wake[self.objects.index(name)] = True  # The target itself, also outside the box (set down by a retrieve).
+        self.objects.set_frozen(self.context, frozen & ~wake)
         self._start(name, goal, reset_robot)
         return name
 

@@ -170,6 +170,22 @@ def accessibility_order(q_blocks: np.ndarray, candidates: list[int]) -> list[int
     return [key[-1] for key in sorted(keys)]
 
 
+def retrieve_order(q_blocks: np.ndarray, candidates: list[int]) -> list[int]:
+    """``candidates`` (rows of ``q_blocks``, an (N, 7) [wxyz, xyz] pile) ordered easiest to take out of the pile
+    first, in whatever pose (``tasks/scripted/block_retrieve_script.py``): centre in :func:`reachable_region`
+    before outside it; uncovered before covered; resting on other blocks before on the box floor (the pinch's
+    jaws reach down past a high block's sides); highest first."""
+    low, high = reachable_region()
+    heights = centre_heights(q_blocks)
+    keys = []
+    for i in candidates:
+        p = q_blocks[i, 4:]
+        k = pick_keys(q_blocks, i, heights)
+        keys.append((not bool(np.all(p[:2] >= low) and np.all(p[:2] <= high)), k["covered"], k["on_floor"],
+                     -k["height"], i))
+    return [key[-1] for key in sorted(keys)]
+
+
 def place_single_block(env, rng: np.random.Generator, orientations: list[str]) -> str:
     """Parks every object, puts one block of a sampled type in the config's ``reset_region`` (the box or the
     staging area), hovers the open hand above it.

@@ -1,0 +1,144 @@
+"""The scripted retrieve (``tasks/scripted/block_retrieve_script.py``): its rules on constructed observations (grip,
+lift, transfer over the near wall, lower, release, done, give up), the action a function of the observation and the
+step only, the retrieve pick order, a real episode that takes an upright block out of the box and sets it down on
+the staging area, and ``experiments/retrieve_chain.py``'s short run and bad input."""
+
+import dataclasses
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from seqdex_drake.envs.subtask_env import make_env
+from seqdex_drake.modeling.blocks import BLOCK_SPECS, TOTAL_HEIGHT
+from seqdex_drake.observation_layout import OBJECT_POSE, PALM_POSE
+from seqdex_drake.robots.allegro import unscale_limits_to_action
+from seqdex_drake.scene.piles import BOX_CENTER
+from seqdex_drake.tasks.blocks_common import STAGING_HIGH, STAGING_LOW, retrieve_order
+from seqdex_drake.tasks.grasp import default_config as grasp_config
+from seqdex_drake.tasks.scripted.block_grasp_script import CLOSING, p_PalmC_Palm
+from seqdex_drake.tasks.scripted.block_retrieve_script import ScriptedBlockRetrieve, block_geometry, on_staging_area
+
+REPO = Path(__file__).resolve().parents[1]
+LENGTH = BLOCK_SPECS[5].footprint[0]
+STAGE = (STAGING_LOW + STAGING_HIGH) / 2
+TABLE = BOX_CENTER[2]
+
+
+def observation(C, centre, upright=True) -> np.ndarray:
+    """An observation with the grasp centre at ``C`` (palm frame = world) and the block's centre at ``centre``,
+    upright or lying on a long side (its z axis along world y)."""
+    o = np.zeros(160)
+    o[PALM_POSE] = np.r_[np.asarray(C) - p_PalmC_Palm, 1.0, 0.0, 0.0, 0.0]
+    if upright:
+        o[OBJECT_POSE] = np.r_[np.asarray(centre) - [0.0, 0.0, TOTAL_HEIGHT / 2], 1.0, 0.0, 0.0, 0.0]
+    else:  # Rolled -90 deg about x: the body z axis along world +y.
+        o[OBJECT_POSE] = np.r_[np.asarray(centre) - [0.0, TOTAL_HEIGHT / 2, 0.0], np.cos(-np.pi / 4),
+                               np.sin(-np.pi / 4), 0.0, 0.0]
+    return o
+
+
+def resting(xy, upright=True) -> np.ndarray:
+    """A block centre resting on the table (or box floor) at ``xy``."""
+    return np.r_[xy, TABLE + (TOTAL_HEIGHT / 2 if upright else 0.015)]
+
+
+def test_geometry_finds_the_centre_and_the_lowest_point_of_a_lying_block():
+    centre = resting([0.2, 0.2], upright=False)
+    found, bottom = block_geometry(observation(centre + [0, 0, 0.2], centre, upright=False), LENGTH)
+    assert np.allclose(found, centre, atol=1e-9)
+    assert bottom == pytest.approx(TABLE, abs=1e-9)  # Lying on a long side: 3 cm tall, its centre 1.5 cm up.
+
+
+def test_rules_from_the_pile_to_the_staging_area():
+    script = ScriptedBlockRetrieve(length=LENGTH)
+    in_box = resting([0.25, 0.2])
+    # The first steps of a window grip; a pinch that did not take (the block stays as C rises) lets go.
+    assert script.phase(observation(in_box + [0, 0, 0.1], in_box), 10) == "grip"
+    assert script.phase(observation(in_box + [0, 0, 0.1], in_box), 60) == "regrip"
+    assert script.phase(observation(in_box, in_box), 60) == "lift"
+    # Held above the walls: carried over the near (-y) wall first, then toward the staging point.
+    high = np.r_[0.25, 0.2, 0.85]
+    assert script.phase(observation(high, high), 60) == "transfer"
+    assert script.act(observation(high, high), 60)[17] < 0 and script.act(observation(high, high), 60)[18] >= 0
+    outside = np.r_[0.25, -0.12, 0.86]
+    action = script.act(observation(outside, outside), 210)
+    assert script.phase(observation(outside, outside), 210) == "transfer"
+    assert action[16] < 0 and action[17] < 0  # Toward the staging point, at (-0.025, -0.30).
+    # Over the staging point: lowered, then let go on the table: the hand goes back to the pre-grasp jaws.
+    above = np.r_[STAGE, 0.80]
+    assert script.phase(observation(above, above), 250) == "lower"
+    assert script.act(observation(above, above), 250)[18] < 0
+    on_table = resting(STAGE)
+    assert script.phase(observation(on_table, on_table), 260) == "release"
+    assert np.allclose(script.act(observation(on_table, on_table), 260)[:16], unscale_limits_to_action(CLOSING[0]))
+    # Out of the hand on the staging area: done (whatever the step); elsewhere after the attempts: given up.
+    assert on_staging_area(on_table)
+    assert script.phase(observation(on_table + [0, 0, 0.2], on_table), 290) == "done"
+    assert script.phase(observation(in_box + [0, 0, 0.2], in_box), 3 * 100 + 5) == "give_up"
+
+
+def test_the_action_is_a_function_of_the_observation_and_the_step_only():
+    o = observation(np.r_[0.25, 0.2, 0.75], resting([0.26, 0.21], upright=False), upright=False)
+    first = [ScriptedBlockRetrieve(length=LENGTH).act(o, step) for step in (0, 20, 60, 150)]
+    script = ScriptedBlockRetrieve(length=LENGTH)
+    for step in (150, 60, 20, 0):  # Another instance, other order: the same actions.
+        assert np.array_equal(script.act(o, step), first[(0, 20, 60, 150).index(step)])
+    assert all(np.all(np.abs(a) <= 1.0) and a.shape == (19,) for a in first)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"length": 0.0}, "length must be the block's length in metres"),
+    ({"length": LENGTH, "attempt_steps": 50}, "attempt_steps \\(50\\) must leave the pinch"),
+])
+def test_bad_parameters_are_refused(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        ScriptedBlockRetrieve(**kwargs)
+
+
+def test_retrieve_order_takes_uncovered_blocks_off_the_floor_highest_first():
+    up = [1.0, 0.0, 0.0, 0.0]
+    q = np.array([up + [0.20, 0.20, TABLE],            # 0: on the floor
+                  up + [0.20, 0.20, TABLE + 0.04],     # 1: on block 0, covered by block 2
+                  up + [0.21, 0.20, TABLE + 0.08],     # 2: on top
+                  up + [0.30, 0.10, TABLE + 0.04]])    # 3: on something, uncovered, lower than 2
+    assert retrieve_order(q, [0, 1, 2, 3]) == [2, 3, 1, 0]
+
+
+def test_an_upright_block_is_taken_out_of_the_box_and_set_down_on_the_staging_area():
+    env = make_env("grasp", dataclasses.replace(grasp_config(), episode_length=700, ema=1.0))
+    observation_, _ = env.reset(seed=1)
+    assert np.all(np.abs(env.object_position()[:2] - BOX_CENTER[:2]) < 0.3)  # Starts in the box.
+    length = BLOCK_SPECS[int(env.target_object.split("_")[1])].footprint[0]
+    script, phases = ScriptedBlockRetrieve(length=length), []
+    for step in range(700):
+        phases.append(script.phase(observation_, step))
+        if phases[-1] in ("done", "give_up"):
+            break
+        observation_, *_ = env.step(script.act(observation_, step))
+    assert phases[-1] == "done", f"ended in {phases[-1]} after {len(phases)} steps"
+    assert {"grip", "lift", "transfer", "lower", "release"} <= set(phases)
+    p = env.object_position()
+    assert np.all(p[:2] >= STAGING_LOW - 0.03) and np.all(p[:2] <= STAGING_HIGH + 0.03)
+    assert p[2] - TABLE < TOTAL_HEIGHT  # Resting on the table, out of the hand.
+
+
+def retrieve_chain(*args, timeout=300):
+    return subprocess.run([sys.executable, str(REPO / "experiments" / "retrieve_chain.py"), *args],
+                          capture_output=True, text=True, timeout=timeout, cwd=REPO)
+
+
+def test_retrieve_chain_short_run_writes_its_episode_and_refuses_bad_input(tmp_path):
+    out = tmp_path / "retrieve.json"
+    result = retrieve_chain("--test", "--out", str(out))
+    assert result.returncode == 0, result.stderr[-2000:]
+    row = json.loads(out.read_text())["per_episode"][0]
+    assert row["block_type"] == 1 and row["block"].startswith("block_1_") and row["retrieve_steps"] == 29
+    assert row["retrieve_phase"] == "grip" and not row["staged"]  # 30 steps: still gripping.
+    summary = retrieve_chain("--summary", str(out))
+    assert json.loads(summary.stdout)["episodes"] == 1 and json.loads(summary.stdout)["staged"] == 0
+    bad = retrieve_chain("--episodes", "5-2")
+    assert bad.returncode == 2 and "--episodes must be A-B" in bad.stderr and "Traceback" not in bad.stderr
