@@ -79,6 +79,8 @@ def test_rules_from_the_pile_to_the_staging_area():
     assert on_staging_area(on_table)
     assert script.phase(observation(on_table + [0, 0, 0.2], on_table), 290) == "done"
     assert script.phase(observation(in_box + [0, 0, 0.2], in_box), 3 * 100 + 5) == "give_up"
+    dropped = resting([0.2, -0.12], upright=False)  # Fell beside the box in the carry: gripped again.
+    assert script.phase(observation(dropped + [0, 0, 0.2], dropped, upright=False), 3 * 100 + 5) == "grip"
 
 
 def test_the_action_is_a_function_of_the_observation_and_the_step_only():

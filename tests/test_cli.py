@@ -86,6 +86,30 @@ def test_collect_writes_loadable_buffer(grasp_run, tmp_path, capsys):
     assert buffer.histories.shape == (len(buffer), 10, 159) and np.isfinite(buffer.returns).all()
 
 
+def test_collect_keeps_the_real_successes_of_a_trained_policy_and_only_those(tmp_path, capsys):
+    """Forward initialization's success filter with successes that happen: the shipped Orient policy stands up 5 of
+    the 6 blocks of seed 0. The buffer keeps those 5, each ending upright (the block's z axis within Orient's
+    success test of world z); ``--keep-failures`` adds all 6, the one failure flagged and not upright."""
+    from seqdex_drake.observation_layout import OBJECT_QUATERNION
+
+    def upright(histories):
+        _, x, y, _ = histories[:, -1, OBJECT_QUATERNION].T
+        return 1.0 - 2.0 * (x * x + y * y) > 0.6
+
+    shipped = ROOT / "checkpoints" / "building_blocks" / "stages" / "orient" / "best.pt"
+    out = tmp_path / "orient_to_grasp.npz"
+    args = ["collect", "--task", "orient", "--checkpoint", str(shipped), "--preset", "budget", "--episodes", "6",
+            "--seed", "0", "--out", str(out)]
+    assert main(args) == 0
+    assert "5 successes out of 6 orient episodes" in capsys.readouterr().out
+    buffer = TerminalBuffer.load(out, expected_task="grasp", expected_source="orient")
+    assert len(buffer) == 5 and buffer.successes.all() and upright(buffer.histories).all()
+    assert main(args + ["--keep-failures", "--resume"]) == 0
+    buffer = TerminalBuffer.load(out, expected_task="grasp")
+    assert len(buffer) == 11 and buffer.successes.sum() == 10
+    assert np.array_equal(upright(buffer.histories), buffer.successes)
+
+
 def test_collect_takes_the_preset_of_a_checkpoint_without_its_run_record(tmp_path, capsys):
     """A shipped stage checkpoint (``checkpoints/<family>/stages/<task>/best.pt``) has no config.json beside it:
     the budget variant's policy (160 observations for grasp) is refused for the paper env with a hint to

@@ -25,8 +25,9 @@ state, so the env and a deployed policy system compute the same action):
   returns to the pre-grasp shape (the jaws 7 cm apart, so the block is let go where it stands, not flung by
   straightening fingers) while the wrist rises slowly. Once the block is no longer held the hand rises to
   ``carry_z`` and waits: the retrieve is over, and Orient's approach takes over.
-* After the attempts, a block that is neither held nor on the staging area is given up: the hand opens and
-  rises (the switcher can restart Search).
+* A block dropped outside the box (on the table, or still settling on the staging area) is gripped again where
+  it lies, in the following windows. After the attempts, a block still in the box and not held is given up: the
+  hand opens and rises (the switcher can restart Search).
 
 Measured (prototype of this script, ``experiments/retrieve_starts.py``): see ``results/building_blocks.md``,
 "The retrieve".
@@ -126,7 +127,7 @@ class ScriptedBlockRetrieve:
             return "transfer"
         if not held and on_staging_area(centre) and bottom < TABLE_Z + 0.01:
             return "done"
-        if step >= self.attempts * self.attempt_steps:
+        if step >= self.attempts * self.attempt_steps and in_box(centre):
             return "give_up"
         if local < self.grasp.lift_at:
             return "grip"
