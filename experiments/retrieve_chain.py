@@ -71,9 +71,12 @@ def retrieve(env, q_pile: np.ndarray, block_type: int, steps: int) -> dict:
             phase = "simulator_error"
             break
     keys = pick_keys(q_pile[blocks], blocks.index(row))
+    R = env.object_pose().rotation().matrix()
     return {"block": names[row], "tilt": round(keys["tilt"], 1), "covered": keys["covered"],
             "on_floor": keys["on_floor"], "retrieve_phase": phase, "retrieve_steps": step,
-            "staged": phase == "done", "staged_at": np.round(env.object_position(), 4).tolist()}
+            "staged": phase == "done", "staged_at": np.round(env.object_position(), 4).tolist(),
+            "staged_tilt": round(float(np.degrees(np.arccos(np.clip(R[2, 2], -1.0, 1.0)))), 1),
+            "staged_on_end": bool(abs(R[2, 0]) > 0.7)}  # Its long axis within 45 deg of vertical.
 
 
 def chain_from_orient(runner, env, name: str, block_type: int, goal: np.ndarray, time_limit: float) -> dict:
@@ -97,7 +100,8 @@ def chain_from_orient(runner, env, name: str, block_type: int, goal: np.ndarray,
         return True
 
     outcome = runner.run(time_limit, on_tick=record)
-    return {"upright_at_grasp": bool(entries.get("grasp", [0.0])[0] >= UPRIGHT_DOT),
+    return {"up_z_at_orient": round(entries.get("orient", [float("nan")])[0], 3),
+            "upright_at_grasp": bool(entries.get("grasp", [0.0])[0] >= UPRIGHT_DOT),
             "lifted_at_insert": bool(entries.get("insert", [0.0, 0.0])[1] >= LIFTED),
             "placed": bool(outcome.success), "position_error": round(float(outcome.position_error), 4),
             "simulator_error": outcome.simulator_error}

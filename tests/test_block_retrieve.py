@@ -15,7 +15,7 @@ import pytest
 from seqdex_drake.envs.subtask_env import make_env
 from seqdex_drake.modeling.blocks import BLOCK_SPECS, TOTAL_HEIGHT
 from seqdex_drake.observation_layout import OBJECT_POSE, PALM_POSE
-from seqdex_drake.robots.allegro import unscale_limits_to_action
+from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, unscale_limits_to_action
 from seqdex_drake.scene.piles import BOX_CENTER
 from seqdex_drake.tasks.blocks_common import STAGING_HIGH, STAGING_LOW, retrieve_order
 from seqdex_drake.tasks.grasp import default_config as grasp_config
@@ -77,7 +77,11 @@ def test_rules_from_the_pile_to_the_staging_area():
     assert np.allclose(script.act(observation(on_table, on_table), 260)[:16], unscale_limits_to_action(CLOSING[0]))
     # Out of the hand on the staging area: done (whatever the step); elsewhere after the attempts: given up.
     assert on_staging_area(on_table)
-    assert script.phase(observation(on_table + [0, 0, 0.2], on_table), 290) == "done"
+    assert script.phase(observation(on_table + [0, 0, 0.05], on_table), 290) == "rise"
+    assert script.act(observation(on_table + [0, 0, 0.05], on_table), 290)[18] > 0
+    assert script.phase(observation(np.r_[STAGE, 0.87], on_table), 290) == "done"
+    assert np.allclose(script.act(observation(np.r_[STAGE, 0.87], on_table), 290)[:16],
+                       unscale_limits_to_action(ALLEGRO_OPEN_Q))  # Fingers straight, as Search leaves them.
     assert script.phase(observation(in_box + [0, 0, 0.2], in_box), 3 * 100 + 5) == "give_up"
     dropped = resting([0.2, -0.12], upright=False)  # Fell beside the box in the carry: gripped again.
     assert script.phase(observation(dropped + [0, 0, 0.2], dropped, upright=False), 3 * 100 + 5) == "grip"
@@ -122,7 +126,7 @@ def test_an_upright_block_is_taken_out_of_the_box_and_set_down_on_the_staging_ar
             break
         observation_, *_ = env.step(script.act(observation_, step))
     assert phases[-1] == "done", f"ended in {phases[-1]} after {len(phases)} steps"
-    assert {"grip", "lift", "transfer", "lower", "release"} <= set(phases)
+    assert {"grip", "lift", "transfer", "lower", "release", "rise"} <= set(phases)
     p = env.object_position()
     assert np.all(p[:2] >= STAGING_LOW - 0.03) and np.all(p[:2] <= STAGING_HIGH + 0.03)
     assert p[2] - TABLE < TOTAL_HEIGHT  # Resting on the table, out of the hand.

@@ -17,14 +17,16 @@ state, so the env and a deployed policy system compute the same action):
   pre-grasp shape and rises until the next window re-grips the block where it now lies. The pinch along world x
   holds lying and upright blocks alike: on the clear table it lifted 11 of 16 lying blocks and all 16 upright
   ones, and held every lifted block through a 0.3 m carry.
-* **Held** means the block's centre is within ``held_radius`` of C. A held block above ``transfer_z`` (clear of
-  the box's walls), or already outside the box, is *transferred*: first over the box's near wall to
-  ``over_y`` at ``carry_z``, then to the staging point at ``carry_z``, then lowered until its lowest point
-  touches the table.
+* **Held** means C is within ``held_radius`` of the block's long axis (a block pinched near an end is held
+  too). A held block above ``transfer_z`` (clear of the box's walls), or lifted beside the box, is *transferred*:
+  first over the box's near wall to ``over_y`` at ``carry_z``, then to the staging point at ``carry_z``, then
+  lowered until its lowest point touches the table.
 * **Release.** A held block resting on the table within ``stage_tolerance`` of the staging point: the hand
   returns to the pre-grasp shape (the jaws 7 cm apart, so the block is let go where it stands, not flung by
   straightening fingers) while the wrist rises slowly. Once the block is no longer held the hand rises to
-  ``carry_z`` and waits: the retrieve is over, and Orient's approach takes over.
+  ``carry_z``, straightening its fingers once the jaws are 10 cm over the block's bottom (the pre-grasp jaws
+  reach down past the grasp centre: left so, Orient's approach would bring them down onto the block), and waits:
+  the retrieve is done, and Orient's approach takes over.
 * A block dropped outside the box (on the table, or still settling on the staging area) is gripped again where
   it lies, in the following windows. After the attempts, a block still in the box and not held is given up: the
   hand opens and rises (the switcher can restart Search).
@@ -39,7 +41,7 @@ import numpy as np
 
 from seqdex_drake.modeling.blocks import TOTAL_HEIGHT
 from seqdex_drake.observation_layout import OBJECT_POSE, PALM_POSE, rotation_matrix
-from seqdex_drake.robots.allegro import ALLEGRO_Q_MAX, ALLEGRO_Q_MIN, unscale_limits_to_action
+from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, ALLEGRO_Q_MAX, ALLEGRO_Q_MIN, unscale_limits_to_action
 from seqdex_drake.scene.piles import BOX_CENTER, BOX_INNER_HALF
 from seqdex_drake.tasks.blocks_common import STAGING_HIGH, STAGING_LOW
 from seqdex_drake.tasks.scripted.block_grasp_script import CLOSING, WRIST_STEP, ScriptedBlockGrasp, p_PalmC_Palm
@@ -84,7 +86,7 @@ class ScriptedBlockRetrieve:
         carry_z: the grasp centre's height while carrying [m]; the box's walls end 0.165 m above its floor.
         transfer_z: a held block whose centre is above this height [m] is carried out.
         over_y: the carry first crosses the box's near (-y) wall to this y [m].
-        held_radius: the block is held while its centre is within this of the grasp centre C [m].
+        held_radius: the block is held while the grasp centre C is within this of its long axis [m].
         stage_tolerance: the block is lowered within this xy distance of ``stage_xy`` [m].
         speed: the wrist's speed while lifting, carrying and lowering, as a fraction of its full step.
         gain: the wrist law's gain (per step, on the error over ``WRIST_STEP``).
@@ -100,6 +102,7 @@ class ScriptedBlockRetrieve:
         self.length = float(length)
         self.stage_xy = (STAGING_LOW + STAGING_HIGH) / 2 if stage_xy is None else np.asarray(stage_xy, dtype=float)
         self.attempts, self.attempt_steps = int(attempts), int(attempt_steps)
+        self.clear_height = 0.10  # C over the block's bottom before the fingers straighten [m].
         self.carry_z, self.transfer_z, self.over_y = carry_z, transfer_z, over_y
         self.held_radius, self.stage_tolerance, self.speed, self.gain = held_radius, stage_tolerance, speed, gain
         self.grasp = ScriptedBlockGrasp(squeeze=squeeze, depth=depth, x_min=x_min)
@@ -114,11 +117,12 @@ class ScriptedBlockRetrieve:
 
     def phase(self, observation, step: int) -> str:
         """The rule that applies: "grip", "lift", "regrip" (a pinch that did not take), "transfer", "lower",
-        "release", "done" (the block is on the staging area, out of the hand) or "give_up"."""
+        "release", "rise" (the block is on the staging area, out of the hand), "done" (and the open hand is back
+        at ``carry_z``) or "give_up"."""
         o = np.asarray(observation, dtype=float)
         centre, bottom = block_geometry(o, self.length)
         C = self._grasp_centre(o)
-        held = float(np.linalg.norm(centre - C)) < self.held_radius
+        held = self._reach(o, centre, C) < self.held_radius
         local = step % self.attempt_steps
         lifted_out = not in_box(centre) and bottom > TABLE_Z + 0.02  # Held off the table beside the box.
         if held and (centre[2] > self.transfer_z or lifted_out or (bottom < TABLE_Z + 0.02 and self._at_stage(centre))):
@@ -126,7 +130,7 @@ class ScriptedBlockRetrieve:
                 return "release" if bottom < TABLE_Z + 0.007 else "lower"
             return "transfer"
         if not held and on_staging_area(centre) and bottom < TABLE_Z + 0.01:
-            return "done"
+            return "done" if C[2] >= self.carry_z - 0.02 else "rise"
         if step >= self.attempts * self.attempt_steps and in_box(centre):
             return "give_up"
         if local < self.grasp.lift_at:
@@ -157,12 +161,22 @@ class ScriptedBlockRetrieve:
             goal = np.r_[self.stage_xy + (C[:2] - centre[:2]), C[2] - (bottom - TABLE_Z - 0.005)]
         elif phase == "release":
             hand, goal = self.open_q, C + [0.0, 0.0, 0.002]
+        elif phase == "rise":  # The jaws clear of the block first, then the fingers straight, as Search leaves them.
+            hand = ALLEGRO_OPEN_Q if C[2] > bottom + self.clear_height else self.open_q
+            goal = np.r_[C[:2], self.carry_z]
         elif phase == "done":
-            hand, goal = self.open_q, np.r_[C[:2], self.carry_z]
+            hand, goal = ALLEGRO_OPEN_Q, C
         else:  # "regrip", "give_up": let go and rise over the block.
             hand, goal = self.open_q, np.r_[C[:2], max(C[2], bottom + self.grasp.z_up)]
         hand_action = unscale_limits_to_action(np.clip(hand, ALLEGRO_Q_MIN, ALLEGRO_Q_MAX))
         return np.r_[hand_action, self._wrist(o, C, goal, speed)]
+
+    def _reach(self, o: np.ndarray, centre: np.ndarray, C: np.ndarray) -> float:
+        """C's distance to the block's long axis (the segment through its centre, its length long): a block
+        pinched near one end is held as well as one pinched at its centre."""
+        axis = rotation_matrix(o[OBJECT_POSE][3:7])[:, 0]
+        d = C - centre
+        return float(np.linalg.norm(d - np.clip(d @ axis, -self.length / 2, self.length / 2) * axis))
 
     def _at_stage(self, centre: np.ndarray) -> bool:
         """Whether the block's centre is over the staging point (the transfer stops within ``stage_tolerance``;
