@@ -14,7 +14,7 @@ to a stud-aligned goal on the baseplate. Recorded per episode: the retrieve's ou
     python experiments/retrieve_chain.py --episodes 0-19 --out runs/retrieve/a.json     # one core each
     python experiments/retrieve_chain.py --episodes 20-39 --out runs/retrieve/b.json
     python experiments/retrieve_chain.py --summary runs/retrieve/a.json runs/retrieve/b.json
-    python experiments/retrieve_chain.py --test            # one retrieve cut short, no chain: for CI
+    python experiments/retrieve_chain.py --test            # one retrieve cut to 30 steps, no chain: for CI
 
 About 2 minutes per episode on a core (the retrieve about 1, the chain about 1).
 """
@@ -44,13 +44,15 @@ def episode_range(text: str) -> list[int]:
     return list(range(first, last + 1))
 
 
-def retrieve(env, q_pile: np.ndarray, block_type: int, steps: int) -> dict:
-    """Restores ``q_pile`` in ``env``, picks the block and runs the scripted retrieve; returns its record."""
+def retrieve(env, q_pile: np.ndarray, block_type: int, steps: int, seed: int) -> dict:
+    """Resets ``env`` (seed ``seed``: nothing of an earlier episode carries over), restores ``q_pile``, picks the
+    block and runs the scripted retrieve; returns its record."""
     from seqdex_drake.modeling.blocks import BLOCK_SPECS
     from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q
     from seqdex_drake.tasks.blocks_common import pick_keys, retrieve_order
     from seqdex_drake.tasks.scripted.block_retrieve_script import ScriptedBlockRetrieve
 
+    env.reset(seed=seed)
     names = env.objects.names
     env.objects.set_positions(env.context, q_pile, frozen=np.zeros(len(names), dtype=bool))
     blocks = [k for k, name in enumerate(names) if name.startswith("block_")]
@@ -66,9 +68,9 @@ def retrieve(env, q_pile: np.ndarray, block_type: int, steps: int) -> dict:
         phase = script.phase(observation, step)
         if phase in ("done", "give_up"):
             break
-        observation, _, _, truncated, info = env.step(script.act(observation, step))
-        if info.get("simulator_error"):
-            phase = "simulator_error"
+        observation, _, terminated, _, info = env.step(script.act(observation, step))
+        if info.get("simulator_error") or terminated:  # A failed solve, or the block off the table.
+            phase = "simulator_error" if info.get("simulator_error") else "left_table"
             break
     keys = pick_keys(q_pile[blocks], blocks.index(row))
     R = env.object_pose().rotation().matrix()
@@ -88,6 +90,7 @@ def chain_from_orient(runner, env, name: str, block_type: int, goal: np.ndarray,
                                    np.zeros(runner.plant.num_velocities(target)))
     runner.objects.set_positions(runner.context, env.objects.positions(env.context),
                                  frozen=env.objects.frozen_mask(env.context))
+    runner.objects.forget_motion()  # Nothing of the previous episode decides what wakes or sleeps.
     runner.start_block(block_type, goal, name=name)
     entries: dict[str, list[float]] = {}
     z0 = float(runner.object_pose().translation()[2])
@@ -119,14 +122,14 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--checkpoints", default=str(ROOT / "checkpoints" / "building_blocks"),
                         help="shipped checkpoint folder (default: the shipped one)")
-    parser.add_argument("--episodes", default="0-19", help="episode numbers A-B (default 0-19)")
+    parser.add_argument("--episodes", help="episode numbers A-B (default 0-19; 0 with --test)")
     parser.add_argument("--piles", choices=sorted(PILES), default="eval",
                         help="eval: the 32 held-out piles (default); train: the 8 Search trained on")
     parser.add_argument("--seed", type=int, default=0, help="seed of the pile and goal draws (default 0)")
     parser.add_argument("--retrieve-steps", type=int, default=800, help="the retrieve's step budget (default 800)")
     parser.add_argument("--out", help="write the results to this JSON file")
     parser.add_argument("--summary", nargs="+", metavar="JSON", help="only print the counts of these results")
-    parser.add_argument("--test", action="store_true", help="one retrieve of 30 steps and no chain, for CI")
+    parser.add_argument("--test", action="store_true", help="retrieves cut to 30 steps and no chain, for CI")
     args = parser.parse_args(argv)
     from seqdex_drake.atomic import atomic_write
     from seqdex_drake.user_input import InputError, check_creatable, check_seed
@@ -136,7 +139,7 @@ def main(argv=None) -> int:
         return 0
     try:
         check_seed(args.seed)
-        episodes = [0] if args.test else episode_range(args.episodes)
+        episodes = episode_range(args.episodes or ("0" if args.test else "0-19"))
         if args.out:
             check_creatable(args.out, "--out")
         if not Path(args.checkpoints).is_dir():
@@ -154,7 +157,6 @@ def main(argv=None) -> int:
     steps = 30 if args.test else args.retrieve_steps
     env = make_env("search", dataclasses.replace(default_config(), scenario="building_blocks/chain",
                                                  episode_length=steps + 1, ema=1.0))
-    env.reset(seed=args.seed)
     piles = LoadPiles(ResolvePackageUrl(PILES[args.piles]), env.objects.names)
     runner = None
     if not args.test:
@@ -168,7 +170,7 @@ def main(argv=None) -> int:
         block_type = TYPES[episode % len(TYPES)]
         pile = int(rng.integers(len(piles)))
         row = {"episode": episode, "pile": pile, "block_type": block_type,
-               **retrieve(env, piles[pile], block_type, steps)}
+               **retrieve(env, piles[pile], block_type, steps, seed=int(rng.integers(1 << 30)))}
         goal = sample_goal(block_type, rng, yaws) if runner is not None else None
         if runner is not None and row["staged"]:
             row.update(chain_from_orient(runner, env, row["block"], block_type, goal, runner.episode_limit()))

@@ -137,14 +137,19 @@ def retrieve_chain(*args, timeout=300):
                           capture_output=True, text=True, timeout=timeout, cwd=REPO)
 
 
-def test_retrieve_chain_short_run_writes_its_episode_and_refuses_bad_input(tmp_path):
-    out = tmp_path / "retrieve.json"
-    result = retrieve_chain("--test", "--out", str(out))
+def test_retrieve_chain_short_run_writes_its_episodes_alike_whatever_ran_before_and_refuses_bad_input(tmp_path):
+    after, alone = tmp_path / "after.json", tmp_path / "alone.json"
+    result = retrieve_chain("--test", "--episodes", "0-1", "--out", str(after))
     assert result.returncode == 0, result.stderr[-2000:]
-    row = json.loads(out.read_text())["per_episode"][0]
-    assert row["block_type"] == 1 and row["block"].startswith("block_1_") and row["retrieve_steps"] == 29
-    assert row["retrieve_phase"] == "grip" and not row["staged"]  # 30 steps: still gripping.
-    summary = retrieve_chain("--summary", str(out))
-    assert json.loads(summary.stdout)["episodes"] == 1 and json.loads(summary.stdout)["staged"] == 0
+    rows = json.loads(after.read_text())["per_episode"]
+    assert [row["episode"] for row in rows] == [0, 1] and [row["block_type"] for row in rows] == [1, 2]
+    assert rows[0]["block"].startswith("block_1_") and rows[0]["retrieve_steps"] == 29
+    assert rows[0]["retrieve_phase"] == "grip" and not rows[0]["staged"]  # 30 steps: still gripping.
+    summary = retrieve_chain("--summary", str(after))
+    assert json.loads(summary.stdout)["episodes"] == 2 and json.loads(summary.stdout)["staged"] == 0
+    # An episode's record does not depend on the episodes run before it in the same process.
+    assert retrieve_chain("--test", "--episodes", "1", "--out", str(alone)).returncode == 0
+    first = json.loads(alone.read_text())["per_episode"][0]
+    assert {**rows[1], "wall_s": 0} == {**first, "wall_s": 0}
     bad = retrieve_chain("--episodes", "5-2")
     assert bad.returncode == 2 and "--episodes must be A-B" in bad.stderr and "Traceback" not in bad.stderr
