@@ -27,7 +27,7 @@ PALM_BACK_REACH = 0.13 + 0.01
 #: baseplate's near edge (x 0.07 m), where a block taken out of the pile can be set down alone. The open hand
 #: hovering over a block there clears the box's walls and the robot's base (its straight fingertips reach over the
 #: flat baseplate's near edge); the shipped Orient and Grasp, trained in the box, stand up and lift blocks there
-#: (``results/building_blocks.md``, "The staging area").
+#: (``results/building_blocks.md``, "Out of the pile: the retrieve").
 STAGING_LOW, STAGING_HIGH = np.array([-0.05, -0.40]), np.array([0.0, -0.20])
 #: Reset regions of the single-block sub-tasks (``TaskConfig.reset_region``).
 RESET_REGIONS = ("box", "staging")

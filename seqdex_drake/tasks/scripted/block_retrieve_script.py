@@ -1,6 +1,6 @@
 """A scripted retrieve for the Building Blocks chain: take the target block out of the pile, in whatever pose it
 lies, and set it down alone on the staging area (``tasks/blocks_common.STAGING_LOW`` .. ``STAGING_HIGH``), where
-the shipped Orient and Grasp keep the success they have alone (``results/building_blocks.md``, "The staging area").
+the shipped Orient and Grasp keep the success they have alone.
 
 Why: inside the pile Orient stands up about 1 in 10 of the blocks it must roll and Grasp's open jaws land on the
 neighbours; on the clear table both succeed in about 0.9 of episodes. The paper's Search "digs and retrieves"; this
