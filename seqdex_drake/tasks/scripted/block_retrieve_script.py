@@ -88,7 +88,8 @@ class ScriptedBlockRetrieve:
         transfer_z: a held block whose centre is above this height [m] is carried out.
         over_y: the carry first crosses the box's near (-y) wall to this y [m].
         held_radius: the block is held while the grasp centre C is within this of its long axis [m].
-        stage_tolerance: the block is lowered within this xy distance of ``stage_xy`` [m].
+        stage_tolerance: the carry lowers the block once its centre is within this of ``stage_xy``, plus 2 cm
+            of slack as it settles [m].
         speed: the wrist's speed while lifting, carrying and lowering, as a fraction of its full step.
         gain: the wrist law's gain (per step, on the error over ``WRIST_STEP``).
         squeeze, depth, x_min: Grasp's pinch (:class:`ScriptedBlockGrasp`).
