@@ -97,7 +97,8 @@ def main(argv=None) -> int:
             check_creatable(args.out, "--out")
         grasp_steps = 20 if args.test else None
         runner = ChainRunner(RunConfig(family="building_blocks", run_dir=args.checkpoints, max_switches=0,
-                                       seed=args.seed, stage_steps=(1, 1, grasp_steps or 150, 125)))
+                                       seed=args.seed, stage_steps=(1, 1, grasp_steps or 150, 125),
+                                       chain="building_blocks_policies"))
         if runner.untrained:
             raise InputError(f"untrained stages in {args.checkpoints}: {', '.join(runner.untrained)}")
     except (InputError, ChainRunError) as error:

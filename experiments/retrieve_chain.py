@@ -161,7 +161,8 @@ def main(argv=None) -> int:
     runner = None
     if not args.test:
         runner = ChainRunner(RunConfig(family="building_blocks", run_dir=args.checkpoints, max_switches=0,
-                                       seed=args.seed, stage_steps=(1, 75, 150, 125)))
+                                       seed=args.seed, stage_steps=(1, 75, 150, 125),
+                                       chain="building_blocks_policies"))
         yaws = runner.stage_configs[runner.tasks.index("insert")].goal_yaws_deg
     rows = []
     for episode in episodes:

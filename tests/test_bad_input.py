@@ -71,5 +71,5 @@ def test_typed_configs_reject_unknown_keys():
 def test_unknown_task_lists_the_valid_ones():
     from seqdex_drake.envs.subtask_env import make_env
 
-    with pytest.raises(ValueError, match="valid tasks: search, orient"):
+    with pytest.raises(ValueError, match="valid tasks: search, retrieve, orient"):
         make_env("nope")

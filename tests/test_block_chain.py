@@ -1,6 +1,7 @@
 """The Building Blocks chain runner: which block it fetches, and where each stage starts."""
 
 import numpy as np
+import pytest
 
 from seqdex_drake.evaluation.chain_settings import APPROACH_STAGES, CARRY_STAGES
 from seqdex_drake.evaluation.runner import ChainRunner, RunConfig
@@ -9,11 +10,12 @@ from seqdex_drake.tasks.blocks_common import reachable_region
 
 
 def test_blocks_are_fetched_where_the_hand_fits_and_every_stage_after_search_starts_with_an_approach():
-    """Orient and Grasp start from the hover point over the block (``APPROACH_STAGES``), Insert with the approach
-    carrying the block (``CARRY_STAGES``; an untrained Grasp holds none, so it goes to the goal's hover point)."""
+    """The retrieve, Orient and Grasp start from the hover point over the block (``APPROACH_STAGES``), Insert with
+    the approach carrying the block (``CARRY_STAGES``; an untrained Grasp holds none, so it goes to the goal's hover
+    point)."""
     # Seed 1: a block whose hover point Search leaves the hand away from (at seed 0 the hand is already over it
     # when Orient starts, and no approach is needed).
-    runner = ChainRunner(RunConfig(family="building_blocks", max_switches=0, stage_steps=(3, 3, 3, 3),
+    runner = ChainRunner(RunConfig(family="building_blocks", max_switches=0, stage_steps=(3,) * 5,
                                    untrained_hidden_sizes=(16,), seed=1))
     step = LoadManual("small_wall").steps[0]
     name = runner.start_block(step.block_type, goal_vector(step))
@@ -24,15 +26,15 @@ def test_blocks_are_fetched_where_the_hand_fits_and_every_stage_after_search_sta
 
     def on_tick(r) -> bool:
         seen.append((int(r.chain_output("active_stage")[0]), bool(r.chain_output("approach_active")[0] > 0.5)))
-        return seen[-1] != (3, False) or len([s for s in seen if s[0] == 3]) < 3  # Until Insert's policy acts.
+        return seen[-1] != (4, False) or len([s for s in seen if s[0] == 4]) < 3  # Until Insert's policy acts.
 
-    runner.run(30.0, on_tick=on_tick, stop_on_success=False)
-    first = {stage: next(i for i, (s, _) in enumerate(seen) if s == stage) for stage in range(4)}
+    runner.run(40.0, on_tick=on_tick, stop_on_success=False)
+    first = {stage: next(i for i, (s, _) in enumerate(seen) if s == stage) for stage in range(5)}
     # The approach re-arms on the tick after the stage changes (the controller reads the switcher's last output).
-    approached = [runner.tasks[i] for i in range(4) if any(active for _, active in seen[first[i]:first[i] + 2])]
+    approached = [runner.tasks[i] for i in range(5) if any(active for _, active in seen[first[i]:first[i] + 2])]
     carried = [task for task, _ in CARRY_STAGES["building_blocks"]]
     assert approached == ["search", *APPROACH_STAGES["building_blocks"], *carried] == runner.tasks
-    for stage in (1, 2, 3):  # The approach ran for a while before each policy acted.
+    for stage in (1, 2, 3, 4):  # The approach ran for a while before each stage's policy (or script) acted.
         assert sum(1 for s, active in seen if s == stage and active) > 10
 
 
@@ -47,7 +49,7 @@ def test_the_shipped_chain_lifts_a_block_and_carries_it_over_its_goal_turned_to_
 
     shipped = Path(__file__).resolve().parents[1] / "checkpoints" / "building_blocks"
     runner = ChainRunner(RunConfig(family="building_blocks", run_dir=str(shipped), max_switches=0,
-                                   stage_steps=(1, 1, 150, 125)))
+                                   stage_steps=(1, 1, 1, 150, 125)))
     assert runner.untrained == []
     step = LoadManual("small_wall").steps[0]
     name = runner.start_block(step.block_type, goal_vector(step))
@@ -58,9 +60,9 @@ def test_the_shipped_chain_lifts_a_block_and_carries_it_over_its_goal_turned_to_
     handed = []
 
     def on_tick(r) -> bool:  # Insert's policy acts once its stage executes with the approach over.
-        if r.chain_output("executing_stage")[0] == 3 and r.chain_output("approach_active")[0] < 0.5:
+        if r.chain_output("executing_stage")[0] == 4 and r.chain_output("approach_active")[0] < 0.5:
             handed.append((r.object_pose().translation(), r.errors()[1]))
-        elif r.chain_output("executing_stage")[0] == 2:
+        elif r.chain_output("executing_stage")[0] == 3:
             lifted.append(r.errors()[1])
         return not handed
 
@@ -88,7 +90,7 @@ def test_a_block_counts_as_placed_only_released_and_at_rest():
 
     # Seed 1: a block whose hover point Search leaves the hand away from (at seed 0 the hand is already over it
     # when Orient starts, and no approach is needed).
-    runner = ChainRunner(RunConfig(family="building_blocks", max_switches=0, stage_steps=(3, 3, 3, 3),
+    runner = ChainRunner(RunConfig(family="building_blocks", max_switches=0, stage_steps=(3,) * 5,
                                    untrained_hidden_sizes=(16,), seed=1))
     step = LoadManual("small_wall").steps[0]
     name = runner.start_block(step.block_type, goal_vector(step))
@@ -114,7 +116,7 @@ def test_a_block_episode_ends_a_settling_second_after_the_chain_is_done():
     ``DONE_SETTLE`` later, not at the limit, which the last stage used to run on to."""
     from seqdex_drake.evaluation.chain_settings import DONE_SETTLE
 
-    runner = ChainRunner(RunConfig(family="building_blocks", max_switches=0, stage_steps=(3, 3, 3, 3),
+    runner = ChainRunner(RunConfig(family="building_blocks", max_switches=0, stage_steps=(3,) * 5,
                                    untrained_hidden_sizes=(16,), seed=1))
     step = LoadManual("small_wall").steps[0]
     runner.start_block(step.block_type, goal_vector(step))
@@ -123,5 +125,22 @@ def test_a_block_episode_ends_a_settling_second_after_the_chain_is_done():
     period = runner.scenario.control_period
     # Ended before the limit, by the settling second: the chain has been done for exactly that long. (The approaches
     # take most of the time here: each waits for the hand to settle, HANDOVER_SETTLE, up to its 3 s timeout.)
-    assert runner.chain_output("active_stage")[0] == 3 and outcome.time < limit - period
+    assert runner.chain_output("active_stage")[0] == 4 and outcome.time < limit - period
     assert runner.chain_done_for() == round(DONE_SETTLE["building_blocks"] / period)
+
+
+def test_the_learned_stages_run_as_their_own_chain_and_fetch_the_block_easiest_to_handle_in_place():
+    """``RunConfig.chain``: the Building Blocks chain without the scripted retrieve (as the experiments that measured
+    it ran) has its four stages, approaches only into those it has, and picks by ``accessibility_order``."""
+    from seqdex_drake.evaluation.runner import ChainRunError
+    from seqdex_drake.tasks.blocks_common import accessibility_order
+
+    runner = ChainRunner(RunConfig(family="building_blocks", chain="building_blocks_policies", max_switches=0,
+                                   stage_steps=(3,) * 4, untrained_hidden_sizes=(16,), seed=1))
+    assert runner.tasks == ["search", "orient", "grasp", "insert"]
+    q = runner.objects.positions(runner.context)
+    blocks = [runner.objects.index(n) for n in runner.objects.names if n.startswith("block_")]
+    rows = [k for k, row in enumerate(blocks) if runner.objects.names[row].startswith("block_5_")]
+    assert runner.pick_block(5) == runner.objects.names[blocks[accessibility_order(q[blocks], rows)[0]]]
+    with pytest.raises(ChainRunError, match="no_such_chain"):
+        ChainRunner(RunConfig(family="building_blocks", chain="no_such_chain"))

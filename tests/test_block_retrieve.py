@@ -1,9 +1,9 @@
 """The scripted retrieve (``tasks/scripted/block_retrieve_script.py``): its rules on constructed observations (grip,
 lift, transfer over the near wall, lower, release, done, give up), the action a function of the observation and the
-step only, the retrieve pick order, a real episode that takes an upright block out of the box and sets it down on
-the staging area, and ``experiments/retrieve_chain.py``'s short run and bad input."""
+step only, its binding to the target block, the retrieve pick order, a real episode of the retrieve stage
+(``tasks/retrieve.py``) that takes a block out of the pile and sets it down on the staging area, the scripted stage's
+policy system, and ``experiments/retrieve_chain.py``'s short run and bad input."""
 
-import dataclasses
 import json
 import subprocess
 import sys
@@ -18,7 +18,6 @@ from seqdex_drake.observation_layout import OBJECT_POSE, PALM_POSE
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, unscale_limits_to_action
 from seqdex_drake.scene.piles import BOX_CENTER
 from seqdex_drake.tasks.blocks_common import STAGING_HIGH, STAGING_LOW, retrieve_order
-from seqdex_drake.tasks.grasp import default_config as grasp_config
 from seqdex_drake.tasks.scripted.block_grasp_script import CLOSING, p_PalmC_Palm
 from seqdex_drake.tasks.scripted.block_retrieve_script import ScriptedBlockRetrieve, block_geometry, on_staging_area
 
@@ -114,22 +113,72 @@ def test_retrieve_order_takes_uncovered_blocks_off_the_floor_highest_first():
     assert retrieve_order(q, [0, 1, 2, 3]) == [2, 3, 1, 0]
 
 
-def test_an_upright_block_is_taken_out_of_the_box_and_set_down_on_the_staging_area():
-    env = make_env("grasp", dataclasses.replace(grasp_config(), episode_length=700, ema=1.0))
-    observation_, _ = env.reset(seed=1)
-    assert np.all(np.abs(env.object_position()[:2] - BOX_CENTER[:2]) < 0.3)  # Starts in the box.
-    length = BLOCK_SPECS[int(env.target_object.split("_")[1])].footprint[0]
-    script, phases = ScriptedBlockRetrieve(length=length), []
-    for step in range(700):
+def test_the_retrieve_binds_to_its_target_block_and_refuses_to_act_without_one():
+    o = observation(np.r_[0.25, 0.2, 0.75], resting([0.26, 0.21]))
+    with pytest.raises(ValueError, match="no target block: bind it with for_object"):
+        ScriptedBlockRetrieve().act(o, 0)
+    bound = ScriptedBlockRetrieve().for_object("block_5_3")
+    assert bound.length == LENGTH and np.array_equal(bound.act(o, 7), ScriptedBlockRetrieve(length=LENGTH).act(o, 7))
+    with pytest.raises(ValueError, match="takes a pile block"):
+        ScriptedBlockRetrieve().for_object("hammer")
+
+
+def test_the_retrieve_stage_takes_its_target_out_of_the_pile_and_sets_it_down_on_the_staging_area():
+    """The scripted stage's env (``tasks/retrieve.py``): the pile, its target bound into the base, zero corrections;
+    it succeeds only once the block rests on the staging area out of the hand."""
+    env = make_env("retrieve")
+    observation_, info = env.reset(seed=0)
+    assert not info["success"] and np.all(np.abs(env.object_position()[:2] - BOX_CENTER[:2]) < 0.3)
+    script, phases = ScriptedBlockRetrieve().for_object(env.target_object), []
+    for step in range(env.config.episode_length):
         phases.append(script.phase(observation_, step))
-        if phases[-1] in ("done", "give_up"):
+        if script.finished(observation_, step):
             break
-        observation_, *_ = env.step(script.act(observation_, step))
+        observation_, _, terminated, truncated, info = env.step(np.zeros(19))
+        assert not terminated and not info["simulator_error"]
     assert phases[-1] == "done", f"ended in {phases[-1]} after {len(phases)} steps"
     assert {"grip", "lift", "transfer", "lower", "release", "rise"} <= set(phases)
-    p = env.object_position()
-    assert np.all(p[:2] >= STAGING_LOW - 0.03) and np.all(p[:2] <= STAGING_HIGH + 0.03)
-    assert p[2] - TABLE < TOTAL_HEIGHT  # Resting on the table, out of the hand.
+    assert info["success"] and on_staging_area(env.object_position())
+
+
+def test_a_scripted_stage_system_acts_as_its_bound_script_and_says_when_it_is_finished():
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import ConstantVectorSource
+
+    from seqdex_drake.controller.policy import PolicyParams, PolicySystem
+
+    script = ScriptedBlockRetrieve(length=LENGTH)
+    done = resting(STAGE, upright=False)
+    o = observation(np.r_[done[:2], script.carry_z], done, upright=False)[:159]
+    assert script.finished(o, 400)
+
+    def run(active: float, target: int | None) -> tuple[np.ndarray, float]:
+        system = PolicySystem.scripted(159, PolicyParams(ema=1.0, residual="block_retrieve_script"),
+                                       body_names=["world", "block_5_3"])
+        builder = DiagramBuilder()
+        builder.AddSystem(system)
+        for port, value in (("observation", o), ("active", [active])):
+            builder.Connect(builder.AddSystem(ConstantVectorSource(np.asarray(value, float))).get_output_port(),
+                            system.GetInputPort(port))
+        simulator = Simulator(builder.Build())
+        context = system.GetMyMutableContextFromRoot(simulator.get_mutable_context())
+        if target is not None:
+            system.set_target_body(context, target)
+        simulator.AdvanceTo(1.5 / 60.0)  # Two updates (t = 0, 1/60).
+        return system.GetOutputPort("raw_action").Eval(context), system.GetOutputPort("finished").Eval(context)[0]
+
+    raw, finished = run(1.0, 1)
+    assert system_is_the_script(raw, script.act(o, 1)) and finished == 1.0
+    assert run(0.0, 1)[1] == 0.0  # An inactive stage never says finished (the next stage must not end with it).
+    with pytest.raises(Exception, match="no target block"):
+        run(1.0, None)
+    with pytest.raises(ValueError, match="body index 5 is not a body"):
+        run(1.0, 5)
+
+
+def system_is_the_script(raw: np.ndarray, action: np.ndarray) -> bool:
+    return raw.shape == (19,) and np.allclose(raw, np.clip(action, -1.0, 1.0), atol=1e-12)
 
 
 def retrieve_chain(*args, timeout=300):

@@ -49,7 +49,9 @@ class CounterEnv(gym.Env):
 def test_shipped_chains_load_and_name_registered_tasks():
     assert {"building_blocks", "tool_positioning", "handover"} <= set(ChainNames())
     chain = LoadChain("building_blocks", valid_tasks=task_names())
-    assert chain.stages == ["search", "orient", "grasp", "insert"]
+    assert chain.stages == ["search", "retrieve", "orient", "grasp", "insert"]
+    assert LoadChain("building_blocks_policies", valid_tasks=task_names()).stages == [
+        "search", "orient", "grasp", "insert"]
     assert chain.next_task("grasp") == "insert" and chain.previous_task("search") is None
 
 
@@ -224,3 +226,13 @@ def test_knocked_out_transitions_knock_the_object_out_late_in_the_previous_stage
     assert data.successes[:2].all() and not data.successes[2:].any()
     with pytest.raises(ValueError, match="need a knock_out function"):
         collect_transitions(envs, [lambda obs: np.ones(1)] * 2, 1, episodes=1, seed=0, knocked_out=1)
+
+
+def test_the_pipeline_refuses_a_chain_with_a_scripted_stage_and_says_what_to_train(tmp_path):
+    from seqdex_drake.chaining.bidirectional import Pipeline
+    from seqdex_drake.chaining.pipeline import PipelineConfig, PipelineError
+
+    config = PipelineConfig.tiny(chain="building_blocks", method="seqdex")
+    with pytest.raises(PipelineError, match="scripted stage.s. retrieve .*learned stages only"):
+        Pipeline(LoadChain("building_blocks"), config, tmp_path / "run")
+    assert not (tmp_path / "run").exists()  # Refused before anything was written.

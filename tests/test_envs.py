@@ -1,5 +1,7 @@
 """Sub-task environments: registry-wide create/reset/step, the paper's observation sizes, gymnasium API."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
@@ -7,11 +9,12 @@ from gymnasium.utils.env_checker import check_env
 from seqdex_drake.envs.subtask_env import make_env
 from seqdex_drake.tasks.registry import default_config, task_names
 
-# The paper's tables; the hand-over chain (reach, lower: not in the paper) uses the base layout and short episodes.
+# The paper's tables; the hand-over chain (reach, lower: not in the paper) uses the base layout and short episodes, as
+# does the scripted retrieve (not in the paper: its three grip attempts, carry and set-down take up to 800 steps).
 PAPER_OBSERVATION_SIZE = {"search": 160, "orient": 159, "grasp": 159, "insert": 173,
-                          "tool_grasp": 159, "tool_reorient": 173, "reach": 159, "lower": 159}
+                          "tool_grasp": 159, "tool_reorient": 173, "reach": 159, "lower": 159, "retrieve": 159}
 PAPER_EPISODE_LENGTH = {"search": 75, "orient": 75, "grasp": 150, "insert": 125, "tool_grasp": 150,
-                        "tool_reorient": 125, "reach": 30, "lower": 15}
+                        "tool_reorient": 125, "reach": 30, "lower": 15, "retrieve": 800}
 
 
 @pytest.fixture(scope="module", params=task_names())
@@ -62,6 +65,9 @@ def test_saved_state_restores_exactly(env):
     """A restored state continues exactly as the original did: the same actions give the same observations.
     At the restore itself the motor-tactile entries are recomputed for the state (the torques the motors will
     exert from it), where the running episode reported those its last plant step applied."""
+    if env.config.residual:  # A scripted base reads the episode's step count, which a restored episode starts at 0
+        # (forward initialization starts a new episode there): the restored physics is compared without the base.
+        env = make_env(env.config.name, dataclasses.replace(env.config, residual=""))
     env.reset(seed=5)
     env.step(np.full(19, -0.2))
     state = env.get_state()

@@ -112,7 +112,7 @@ def test_block_episode_records_its_start_and_the_notes_count_distinct_starts():
     from seqdex_drake.evaluation.episodes import handover_notes, run_episode
     from seqdex_drake.evaluation.runner import ChainRunner, RunConfig
 
-    runner = ChainRunner(RunConfig(family="building_blocks", stage_steps=(2, 2, 2, 2),
+    runner = ChainRunner(RunConfig(family="building_blocks", stage_steps=(2,) * 5,
                                    untrained_hidden_sizes=(8,)))
     config = types.SimpleNamespace(family="building_blocks", time_limit=0.05)
     first, _, _ = run_episode(runner, config, 5, seed=0, episode=0, scatter=False)

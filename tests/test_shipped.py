@@ -13,6 +13,7 @@ from seqdex_drake.chaining.shipped import ShippedChainError, StageRecord, load_s
 from seqdex_drake.rl.config import PPOConfig
 from seqdex_drake.rl.ppo import PPO
 from seqdex_drake.tasks.phases import release_tool_grasp_phases
+from seqdex_drake.tasks.registry import is_scripted
 from seqdex_drake.tasks.run_config import observation_spec
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,6 +67,23 @@ def test_missing_truncated_and_foreign_files_are_refused_naming_them(shipped, tm
         load_shipped_chain(other, "tool_positioning", TASKS, SIZES)
     with pytest.raises(ShippedChainError, match="not 'building_blocks'"):
         load_shipped_chain(shipped, "building_blocks", ["search", "orient", "grasp", "insert"], SIZES)
+
+
+def test_a_scripted_stage_is_not_shipped_and_a_policy_listed_for_it_is_refused(tmp_path):
+    tasks = ["search", "retrieve", "orient", "grasp", "insert"]
+    sizes = {"search": 160, "retrieve": 159, "orient": 159, "grasp": 159, "insert": 173}
+    folder = tmp_path / "building_blocks"
+    ship_chain(folder, "building_blocks", [StageRecord("orient", _checkpoint(tmp_path / "o.pt", "orient", 160))])
+    chain = load_shipped_chain(folder, "building_blocks", tasks, sizes)
+    assert chain.policies[1] is None and chain.configs[1].residual == "block_retrieve_script"
+    # The missing stages are the trained ones not shipped; the scripted retrieve is not missing.
+    assert [line.split(" ")[2] for line in chain.missing] == ["(search):", "(grasp):", "(insert):"]
+    path = folder / "manifest.json"
+    manifest = json.loads(path.read_text())
+    manifest["stages"]["retrieve"] = manifest["stages"]["orient"]
+    path.write_text(json.dumps(manifest))
+    with pytest.raises(ShippedChainError, match="retrieve stage, which is scripted"):
+        load_shipped_chain(folder, "building_blocks", tasks, sizes)
 
 
 def test_a_field_added_to_the_task_config_since_shipping_is_tolerated_at_its_default(shipped):
@@ -158,6 +176,9 @@ def test_the_repository_s_shipped_policies_load_inference_only_and_step(name):
     chain = load_shipped_chain(folder, chain_name, tasks, sizes)
     assert chain.missing == [], chain.missing
     for index, (task, path, config) in enumerate(zip(tasks, chain.policies, chain.configs, strict=True)):
+        if is_scripted(task):  # Its base acts alone: nothing shipped.
+            assert path is None and task not in chain.manifest["stages"]
+            continue
         state = load_checkpoint(path)
         assert state["optimizer"]["state"] == {} and "env" not in state, f"{path} holds training state"
         observation, _ = make_env(task, config).reset(seed=0)

@@ -42,7 +42,7 @@ from seqdex_drake.env_state import EnvState, check_handoff
 from seqdex_drake.rl.checkpoint import CheckpointError, load_checkpoint
 from seqdex_drake.rl.config import PPOConfig
 from seqdex_drake.rl.ppo import PPO
-from seqdex_drake.tasks.registry import KNOCK_OUTS, budget_config, default_config
+from seqdex_drake.tasks.registry import KNOCK_OUTS, budget_config, default_config, is_scripted
 from seqdex_drake.tasks.run_config import observation_spec
 
 #: Observations kept per transition (the history ablation goes up to H = 15).
@@ -85,6 +85,12 @@ class Pipeline:
         self.chain, self.config, self.progress, self.log = chain, config, progress, log
         self.env_kit = env_kit
         self.stages = chain.stages
+        scripted = [task for task in self.stages if is_scripted(task)]
+        if scripted:  # Its base acts alone: no PPO phase, no policy checkpoint to hand states from.
+            raise PipelineError(f"chain {config.chain!r} has the scripted stage(s) {', '.join(scripted)} "
+                                f"(Task.scripted): the pipeline trains chains of learned stages only; train the "
+                                f"learned stages with seqdex train (forward initialization: seqdex collect) and "
+                                f"ship them with seqdex ship")
         self.task_configs = [self._task_config(task) for task in self.stages]
         self.run = RunDirectory(run_dir, config, chain, resume)
         self._envs = None

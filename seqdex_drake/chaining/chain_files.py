@@ -28,7 +28,8 @@ class ChainCheckpoints:
     tasks: list[str]
     """The chain's tasks, in order."""
     policies: list[Path | None]
-    """Per stage, the policy checkpoint (``best.pt``, else ``last.pt``), or None (untrained)."""
+    """Per stage, the policy checkpoint (``best.pt``, else ``last.pt``), or None (untrained, or a scripted stage:
+    ``Task.scripted``, which has none)."""
     feasibility: list[Path | None]
     """Per stage, its feasibility file, or None (stage 0 never has one)."""
     missing: list[str]
@@ -57,9 +58,10 @@ def LoadChainCheckpoints(run_dir: str | os.PathLike, tasks: Sequence[str]) -> Ch
     policies, feasibility, missing = [], [], []
     for i, task in enumerate(tasks):
         candidates = [run_dir / "stages" / task / name for name in ("best.pt", "last.pt")]
-        found = next((path for path in candidates if path.is_file()), None)
+        scripted = REGISTRY[task][1].scripted  # Its base acts alone: no checkpoint to find.
+        found = None if scripted else next((path for path in candidates if path.is_file()), None)
         policies.append(found)
-        if found is None:
+        if found is None and not scripted:
             missing.append(f"stage {i} ({task}): no policy checkpoint {candidates[0]} or {candidates[1].name}; "
                            f"the stage runs an untrained policy")
         path = run_dir / "feasibility" / f"{task}.pt"

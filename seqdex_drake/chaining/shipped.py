@@ -10,6 +10,8 @@ also reads it, plus a manifest)::
                                                    the optimizer's moments and the env state left out)
     checkpoints/<chain>/feasibility/<task>.pt      F predicting <task>'s return (with its threshold h)
 
+A scripted stage (``Task.scripted``: its base acts alone) has no policy and no manifest entry.
+
 :func:`ship_chain` writes one from training runs; :func:`load_shipped_chain` checks one before anything is built:
 the manifest's format and version, every file present and whole (its hash), each policy's observation spec
 against its stage's (another task's policy or another observation layout is refused, naming the file), and each
@@ -26,7 +28,7 @@ from pathlib import Path
 
 from seqdex_drake.atomic import atomic_write
 from seqdex_drake.rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
-from seqdex_drake.tasks.registry import default_config
+from seqdex_drake.tasks.registry import default_config, is_scripted
 from seqdex_drake.tasks.run_config import config_dict, observation_spec, same_task_config, task_config
 
 FORMAT = "seqdex_drake.shipped_chain"
@@ -74,7 +76,7 @@ class ShippedChain:
     @property
     def missing(self) -> list[str]:
         return [f"stage {i} ({task}): not shipped in {self.folder}; the stage runs an untrained policy"
-                for i, (task, policy) in enumerate(self.stages) if policy is None]
+                for i, (task, policy) in enumerate(self.stages) if policy is None and not is_scripted(task)]
 
 
 def _sha256(path: Path) -> str:
@@ -161,6 +163,9 @@ def load_shipped_chain(folder: str | Path, chain: str, tasks: list[str], observa
     policies, configs, feasibility = [], [], []
     for task in tasks:
         entry = manifest["stages"].get(task)
+        if entry is not None and is_scripted(task):
+            raise ShippedChainError(f"{path} lists a policy for the {task} stage, which is scripted (its base acts "
+                                    f"alone); remove the entry")
         if entry is None:
             policies.append(None)
             configs.append(default_config(task))

@@ -19,6 +19,7 @@ object (unless ``--episodes``), 6-tick stages, 1 s episodes, small untrained net
 
 from pathlib import Path
 
+from seqdex_drake.chaining.chain import LoadChain
 from seqdex_drake.cli import CliError
 from seqdex_drake.evaluation.experiments import EvalConfig, Evaluation, history_available, progress_bar, total_episodes
 from seqdex_drake.evaluation.parallel import EvaluationWorkerError
@@ -68,7 +69,7 @@ def run(args) -> int:
         objects = None if args.objects is None else object_keys(args.task, args.objects)
     except ValueError as error:
         raise CliError(f"--objects: {error}") from error
-    stages = 4 if args.task == "building_blocks" else 2
+    stages = len(LoadChain(args.task).stages)
     test_ablation = objects[:1] if objects else ((1,) if args.task == "building_blocks" else (0,))
     config = EvalConfig(
         family=args.task, run_dir=str(run_dir), out_dir=args.out or str(run_dir / "evaluation"), episodes=episodes,

@@ -27,6 +27,7 @@ import numpy as np
 from pydrake.geometry import Meshcat, MeshcatParams
 
 from seqdex_drake.atomic import atomic_write
+from seqdex_drake.chaining.chain import LoadChain
 from seqdex_drake.cli import CliError
 from seqdex_drake.evaluation.runner import ChainRunError, ChainRunner, RunConfig
 from seqdex_drake.manual import LoadManual, ManualError, goal_vector
@@ -125,9 +126,8 @@ def run(args) -> int:
     if meshcat is not None:
         meshcat.SetCameraPose([1.45, -0.25, 1.35], [0.15, -0.05, 0.62])
         print(f"meshcat: open {meshcat.web_url()} in a browser", flush=True)
-    families = {"building_blocks": 4, "tool_positioning": 2}
     config = RunConfig(family=args.task, run_dir=args.checkpoints, max_switches=args.max_switches, seed=args.seed,
-                       stage_steps=(TEST_STAGE_STEPS,) * families[args.task] if args.test else None,
+                       stage_steps=(TEST_STAGE_STEPS,) * len(LoadChain(args.task).stages) if args.test else None,
                        untrained_hidden_sizes=(64, 64) if args.test else None)
     print(f"building the {args.task} station and chain controller ...", flush=True)
     try:

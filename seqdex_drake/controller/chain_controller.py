@@ -32,7 +32,9 @@ from collections.abc import Sequence
 
 import numpy as np
 import torch
+from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder
+from pydrake.systems.primitives import Adder
 
 from seqdex_drake.chaining.chain_files import check_chain_task
 from seqdex_drake.chaining.feasibility_io import FeasibilityFile, load_feasibility
@@ -129,7 +131,13 @@ def _layout(task: str) -> tuple[bool, bool]:
     return bool(task_class.goal), bool(task_class.pixels)
 
 
-def _make_policy(index: int, task: str, policy, size: int, params: PolicyParams, chain: ChainParams) -> PolicySystem:
+def _make_policy(index: int, task: str, policy, size: int, params: PolicyParams, chain: ChainParams,
+                 body_names: list[str]) -> PolicySystem:
+    if REGISTRY[task][1].scripted:
+        if policy is not None:
+            raise ValueError(f"stage {index} ({task}) is scripted (its base acts alone, nothing is trained): its "
+                             f"policy must be None, got {policy!r}")
+        return PolicySystem.scripted(size, params, body_names)
     if policy is None:
         return PolicySystem.untrained(size, chain.untrained_seed + index, params, chain.untrained_hidden_sizes)
     if isinstance(policy, ActorCritic):
@@ -223,9 +231,12 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
         assemblers[(goal, pixels)] = builder.AddNamedSystem(name, ObservationAssembler(plant, goal, pixels))
     sizes = [assemblers[layout].size for layout in layouts]
     policies = []
+    # Each body's object name (its model instance's, e.g. "block_3_2"), by body index, for target-bound bases.
+    body_names = [plant.GetModelInstanceName(plant.get_body(BodyIndex(i)).model_instance())
+                  for i in range(plant.num_bodies())]
     for i, ((task, policy), config) in enumerate(zip(stages, configs, strict=True)):
         policy_params = StagePolicyParams(config, period, params.inference, params.ema)
-        system = _make_policy(i, task, policy, sizes[i], policy_params, params)
+        system = _make_policy(i, task, policy, sizes[i], policy_params, params, body_names)
         policies.append(builder.AddNamedSystem(f"policy.{i}", system))
     # A stage that observes its progress: its F reads histories with the progress appended (the switcher adds it).
     time_steps = tuple(config.episode_length if config.observe_time else 0 for config in configs)
@@ -292,6 +303,12 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
             builder.Connect(assemblers[layouts[i - 1]].GetOutputPort("observation"),
                             switcher.GetInputPort(f"observation.{i - 1}"))
     builder.Connect(osc.GetOutputPort("approach_active"), switcher.GetInputPort("approach_active"))
+    scripted = [policy for policy in policies if policy.scripted]
+    if scripted:  # A scripted stage ends when its script is finished (only the active system's output is 1).
+        done = builder.AddNamedSystem("scripted_done", Adder(len(scripted), 1))
+        for k, policy in enumerate(scripted):
+            builder.Connect(policy.GetOutputPort("finished"), done.get_input_port(k))
+        builder.Connect(done.get_output_port(), switcher.GetInputPort("stage_done"))
     # A feasibility switch (or entering an approach stage) (re)starts a stage: the approach brings the hand back
     # above the target first.
     builder.Connect(switcher.GetOutputPort("stage_epoch"), osc.GetInputPort("stage_epoch"))
@@ -379,6 +396,8 @@ def SetChainTarget(controller: Diagram, root_context: Context, object_body: int,
         target.goal = goal
     approach = controller.GetSubsystemByName("approach_target")
     approach.set_target(approach.GetMyMutableContextFromRoot(root_context), target)
+    for policy in GetChainPolicies(controller):  # Scripted stages bind their base to the target (the retrieve).
+        policy.set_target_body(policy.GetMyMutableContextFromRoot(root_context), int(object_body))
     for name in ("observation.base", "observation.goal", "observation.pixels"):
         if controller.HasSubsystemNamed(name):
             assembler = controller.GetSubsystemByName(name)

@@ -15,6 +15,12 @@ applied action (the chain's router does). A system whose ``active`` input is 0 s
 the applied action into its state, so that whenever it is routed to the robot its outputs are what the robot
 executes; when it becomes active its first filtered action starts from the applied one.
 
+Scripted stages. :meth:`PolicySystem.scripted` hosts no network: the stage's scripted base (``params.residual``,
+``tasks/residual.py``) acts alone, as a scripted task's env applies it (``Task.scripted``, e.g. the Building Blocks
+retrieve). A base bound to the chain's target (its ``for_object``: the retrieve needs the block's length) is bound
+from the ``target_body`` parameter (:meth:`PolicySystem.set_target_body`, which ``SetChainTarget`` calls) and the
+station plant's body names. Output ``finished`` is 1 from the tick after the base says its work is over.
+
 Inference. By default (``PolicyParams.inference = "numpy"``) the action mean comes from a
 :class:`~seqdex_drake.controller.inference.PolicySnapshot`: the actor and its normalizer copied into float32 numpy
 arrays, equal to the torch model's output to ~1e-6 relative and several times cheaper per batch-1 call (torch's
@@ -38,7 +44,7 @@ from seqdex_drake.rl.networks import ActorCritic
 from seqdex_drake.rl.ppo import PPO
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, scale_action_to_limits, unscale_limits_to_action
 from seqdex_drake.tasks.phases import ScriptedPhases, apply_phases
-from seqdex_drake.tasks.residual import apply_residual, make_base
+from seqdex_drake.tasks.residual import apply_residual, base_finished, bind_base, make_base
 
 ACTION_SIZE = 19
 HAND_SIZE = 16
@@ -97,23 +103,29 @@ class PolicySystem(LeafSystem):
 
     Output ports (all held between updates, no direct feedthrough): ``action`` (19, clipped to [-1, 1],
     hand part EMA-filtered), ``raw_action`` (19, clipped, unfiltered: what the observations' previous-action
-    entries hold), ``hand_target`` (16 Allegro joint targets, rad), ``wrist_translation`` (3, m).
+    entries hold), ``hand_target`` (16 Allegro joint targets, rad), ``wrist_translation`` (3, m), ``finished``
+    (1: the system is active and its base said at its last update that its work is over; 0 otherwise, so a stage
+    that has just handed over does not end the next one).
+
+    Parameter: ``target_body`` (1, the chain target's body index in the station plant; -1: none), which binds a
+    target-dependent base (:meth:`set_target_body`).
 
     At initialization the filter memory becomes the action that holds the measured hand joint positions
     (read from the observation) and a zero wrist motion, so starting a simulation does not jerk the hand.
 
-    Construct with :meth:`from_checkpoint`, :meth:`untrained`, or directly from an in-memory model.
+    Construct with :meth:`from_checkpoint`, :meth:`untrained`, :meth:`scripted`, or directly from an in-memory model.
 
     Args:
-        model: the actor-critic; it is put in eval mode and used for inference only.
+        model: the actor-critic; it is put in eval mode and used for inference only. None: a scripted stage
+            (``params.residual`` names its base; :meth:`scripted`).
         observation_size: size of the stage's observation (checked against the model's input).
         params: update period, EMA factor, wrist step; defaults to ``PolicyParams()``.
         trained: False marks a freshly initialised policy (the chain runs without checkpoints).
         source: where the model came from (a file path or a description), used in messages.
     """
 
-    def __init__(self, model: ActorCritic, observation_size: int, params: PolicyParams | None = None,
-                 trained: bool = True, source: str = "in-memory model"):
+    def __init__(self, model: ActorCritic | None, observation_size: int, params: PolicyParams | None = None,
+                 trained: bool = True, source: str = "in-memory model", body_names: list[str] | None = None):
         super().__init__()
         self._params = params = params or PolicyParams()
         if not 0.0 < params.ema <= 1.0:
@@ -124,10 +136,16 @@ class PolicySystem(LeafSystem):
             raise ValueError(f"inference must be 'numpy' or 'torch', got {params.inference!r}")
         if params.time_steps < 0:
             raise ValueError(f"time_steps must be >= 0, got {params.time_steps}")
-        _check_model(model, observation_size + (1 if params.time_steps else 0), source)
+        if model is None and not params.residual:
+            raise ValueError(f"{source}: a scripted stage (no model) needs its base, PolicyParams.residual")
+        if model is not None:
+            _check_model(model, observation_size + (1 if params.time_steps else 0), source)
         self._residual_base = make_base(params.residual) if params.residual else None
-        self.model = model.eval()
-        self._snapshot = PolicySnapshot(model) if params.inference == "numpy" else None
+        self._bound: dict[int, object] = {}  # Target body index -> the base bound to it (a pure function's cache).
+        self._body_names = list(body_names or [])
+        self.model = model.eval() if model is not None else None
+        self.scripted = model is None
+        self._snapshot = PolicySnapshot(model) if params.inference == "numpy" and model is not None else None
         self.trained = bool(trained)
         self.source = str(source)
         self.observation_size = int(observation_size)
@@ -143,11 +161,15 @@ class PolicySystem(LeafSystem):
         # State: [filtered action (19), raw action (19)], and the ticks since the system became active.
         self._state_index = self.DeclareDiscreteState(np.r_[initial, initial])
         self._ticks_index = self.DeclareDiscreteState(1)
+        self._finished_index = self.DeclareDiscreteState(1)
+        self._target_index = self.DeclareNumericParameter(BasicVector([-1.0]))
         ticket = {self.discrete_state_ticket(self._state_index)}
         self.DeclareVectorOutputPort("action", ACTION_SIZE, self._calc_action, prerequisites_of_calc=ticket)
         self.DeclareVectorOutputPort("raw_action", ACTION_SIZE, self._calc_raw, prerequisites_of_calc=ticket)
         self.DeclareVectorOutputPort("hand_target", HAND_SIZE, self._calc_hand, prerequisites_of_calc=ticket)
         self.DeclareVectorOutputPort("wrist_translation", 3, self._calc_wrist, prerequisites_of_calc=ticket)
+        self.DeclareVectorOutputPort("finished", 1, self._calc_finished, prerequisites_of_calc={
+            self.discrete_state_ticket(self._finished_index), self.input_port_ticket(self._active_port.get_index())})
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         self.DeclarePeriodicDiscreteUpdateEvent(params.control_period, 0.0, self._update)
 
@@ -189,13 +211,42 @@ class PolicySystem(LeafSystem):
             model = ActorCritic(inputs, ACTION_SIZE, hidden_sizes, critic_hidden_sizes=(8,))
         return cls(model, observation_size, params, trained=False, source=f"untrained policy (seed {seed})")
 
+    @classmethod
+    def scripted(cls, observation_size: int, params: PolicyParams, body_names: list[str] | None = None
+                 ) -> PolicySystem:
+        """A scripted stage: ``params.residual``'s base acts alone (no network). ``body_names``: the station plant's
+        object (model instance) name of each body, by body index, to bind a target-dependent base
+        (:meth:`set_target_body`)."""
+        return cls(None, observation_size, params, trained=True, source=f"the scripted {params.residual}",
+                   body_names=body_names)
+
     # ------------------------------------------------------------------------------------------ helpers
+    def set_target_body(self, context: Context, body_index: int) -> None:
+        """Sets the chain target's body index (station plant) in this system's ``context``: a base with a
+        ``for_object`` hook acts on that body's name. Raises a ValueError for an index the plant lacks."""
+        if self._body_names and not 0 <= int(body_index) < len(self._body_names):
+            raise ValueError(f"body index {body_index} is not a body of the station plant "
+                             f"(0..{len(self._body_names) - 1})")
+        context.get_mutable_numeric_parameter(self._target_index).SetFromVector([float(body_index)])
+
+    def _base(self, context: Context):
+        """The residual base bound to the target (unbound when no target is set or no body names are known)."""
+        index = int(context.get_numeric_parameter(self._target_index).GetAtIndex(0))
+        if index < 0 or not self._body_names:
+            return self._residual_base
+        if index not in self._bound:
+            self._bound[index] = bind_base(self._residual_base, self._body_names[index])
+        return self._bound[index]
+
     @property
     def params(self) -> PolicyParams:
         return self._params
 
     def raw_action(self, observation: np.ndarray) -> np.ndarray:
-        """The clipped deterministic action for one observation (no filtering), by ``params.inference``."""
+        """The clipped deterministic action for one observation (no filtering), by ``params.inference``; zeros
+        for a scripted stage (its base is the whole action)."""
+        if self.model is None:
+            return np.zeros(ACTION_SIZE)
         if self._snapshot is None:
             return self.torch_raw_action(observation)
         if self._snapshot.stale():  # The model's weights changed in place since the snapshot.
@@ -228,11 +279,13 @@ class PolicySystem(LeafSystem):
         hold = np.r_[np.clip(unscale_limits_to_action(observation[_HAND_Q]), -1.0, 1.0), np.zeros(3)]
         discrete_state.set_value(self._state_index, np.r_[hold, hold])
         discrete_state.set_value(self._ticks_index, [0])
+        discrete_state.set_value(self._finished_index, [0.0])
 
     def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
         filtered, raw = self._memory(context)
         active = not self._active_port.HasValue(context) or self._active_port.Eval(context)[0] > 0.5
         ticks = int(context.get_discrete_state(self._ticks_index).get_value()[0])
+        finished = False
         if active:
             observation = self._observation_port.Eval(context)
             if self._params.time_steps:  # A time-aware policy (TaskConfig.observe_time): its progress appended.
@@ -242,12 +295,15 @@ class PolicySystem(LeafSystem):
                 raise RuntimeError(f"policy {self.source} produced a non-finite action at t = "
                                    f"{context.get_time():.3f} s (non-finite observation or weights)")
             if self._residual_base is not None:  # As the env: the policy corrects its scripted base.
-                action = np.array(apply_residual(self._residual_base, observation, ticks, action.tolist()))
+                base = self._base(context)
+                action = np.array(apply_residual(base, observation, ticks, action.tolist()))
+                finished = base_finished(base, observation, ticks)
             if self._params.phases is not None:  # As the env: the scripted lift, the frozen hand.
                 action = np.array(apply_phases(self._params.phases, ticks, action.tolist(), raw.tolist())[0])
             raw, filtered = action, self.filter(action, filtered)
         discrete_state.set_value(self._state_index, np.concatenate((filtered, raw)))
         discrete_state.set_value(self._ticks_index, [ticks + 1 if active else 0])
+        discrete_state.set_value(self._finished_index, [float(finished)])
 
     def _state(self, context: Context) -> np.ndarray:
         return context.get_discrete_state(self._state_index).get_value()
@@ -260,6 +316,10 @@ class PolicySystem(LeafSystem):
 
     def _calc_hand(self, context: Context, output: BasicVector) -> None:
         output.SetFromVector(scale_action_to_limits(self._state(context)[:HAND_SIZE]))
+
+    def _calc_finished(self, context: Context, output: BasicVector) -> None:
+        active = not self._active_port.HasValue(context) or self._active_port.Eval(context)[0] > 0.5
+        output.SetFromVector(context.get_discrete_state(self._finished_index).get_value() * float(active))
 
     def _calc_wrist(self, context: Context, output: BasicVector) -> None:
         output.SetFromVector(self._state(context)[HAND_SIZE:ACTION_SIZE] * self._params.wrist_step)

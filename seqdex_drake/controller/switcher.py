@@ -11,7 +11,8 @@ it, only the next stage's score c^{i+1} is computed every tick (``SwitcherParams
 ``trigger = "any_later"`` every later stage's is. A *decision* happens when
 
 - a computed later score exceeds 1 (the paper's switch timing: c^{i+1} > 1), or
-- the executing stage's step budget is used up, or the optional ``stage_success`` input is above 0.5, or
+- the executing stage's step budget is used up, or the optional ``stage_success`` input is above 0.5, or the
+  optional ``stage_done`` (a scripted stage's policy system says its script is finished), or
 - every tick, with ``evaluate_every_tick`` (every score every tick).
 
 At a decision, while fewer than ``max_switches`` feasibility switches have been made, the switcher computes every
@@ -104,7 +105,8 @@ class FeasibilitySwitcher(LeafSystem):
     """Chooses the executing stage from the feasibility scores c^i = F^i / h^i (see the module docstring).
 
     Input ports: ``observation.<i>`` for every stage i whose successor has an F (stage i's observation, the
-    history F^{i+1} reads), ``stage_success`` (1, optional), ``approach_active`` (1, optional), ``object_held``
+    history F^{i+1} reads), ``stage_success`` (1, optional), ``stage_done`` (1, optional: as ``stage_success``, from
+    the executing scripted stage), ``approach_active`` (1, optional), ``object_held``
     (1, optional: ``SwitcherParams.free_object_stages``).
     Output ports: ``active_stage`` (1, the stage index 0..K-1 to execute), ``feasibility_scores`` (K, c^i;
     NaN for stage 0 and stages without F), ``switches_used`` (1), ``stage_epoch`` (1: changes whenever a stage
@@ -176,6 +178,7 @@ class FeasibilitySwitcher(LeafSystem):
             self._history_index[source] = self.DeclareDiscreteState(np.zeros(1 + length * (size + timed)))
         self._build_bank()
         self._success_port = self.DeclareVectorInputPort("stage_success", 1)
+        self._done_port = self.DeclareVectorInputPort("stage_done", 1)
         self._approach_port = self.DeclareVectorInputPort("approach_active", 1)
         self._held_port = self.DeclareVectorInputPort("object_held", 1)
         self._status_index = self.DeclareDiscreteState(np.zeros(3))  # stage, steps in stage, switches used
@@ -320,7 +323,8 @@ class FeasibilitySwitcher(LeafSystem):
             target, restart, switched = stage, False, False
         else:
             steps += 1
-            success = self._success_port.HasValue(context) and self._success_port.Eval(context)[0] > 0.5
+            success = any(port.HasValue(context) and port.Eval(context)[0] > 0.5
+                          for port in (self._success_port, self._done_port))
             held = self._held_port.HasValue(context) and self._held_port.Eval(context)[0] > 0.5
             target, restart, switched = self.decide(stage, steps, switches, fresh, bool(success), full_scores, held)
         scores = context.get_discrete_state(self._scores_index).get_value().copy()

@@ -37,7 +37,7 @@ from seqdex_drake.station import MakeControllerPlant, MakeStation, RefreshSample
 from seqdex_drake.tasks.base import Task, TaskConfig
 from seqdex_drake.tasks.phases import apply_phases
 from seqdex_drake.tasks.registry import make_task
-from seqdex_drake.tasks.residual import apply_residual, make_base
+from seqdex_drake.tasks.residual import apply_residual, bind_base, make_base
 
 COMMAND_SIZE = 14 + 32 + ACTION_SIZE
 """The env's per-step command source: arm desired state (14), hand desired state (32), previous action."""
@@ -127,7 +127,8 @@ class SubtaskEnv(gym.Env):
         self.randomizer = DomainRandomizer(self, self.config.randomization)  # DR hook (envs/randomization.py)
         phases = self.config.phases
         self._phases = phases if phases is not None and phases.enabled else None
-        self._residual_base = make_base(self.config.residual) if self.config.residual else None
+        # The base as made, and bound to the episode's target (set_target; tasks/residual.bind_base).
+        self._unbound_base = self._residual_base = make_base(self.config.residual) if self.config.residual else None
 
     # ------------------------------------------------------------------------------------------- state
     @property
@@ -217,6 +218,7 @@ class SubtaskEnv(gym.Env):
         label = int(self.object_body().index())  # MultibodyPlant labels each body's geometry by body index.
         self._observation_target = ObservationTarget(object_body=label, goal=self.goal, label=label)
         self.assembler.set_target(self._assembler_context, self._observation_target)
+        self._residual_base = bind_base(self._unbound_base, name)
 
     def get_state(self) -> EnvState:
         return scene_handoff.capture(self, EnvState(

@@ -17,7 +17,7 @@ BLOCK_TRAVEL_HEIGHT = 0.9
 #: Stages entered with the approach first (``ChainParams.approach_stages``): block Orient and Grasp were trained from
 #: resets with the open hand 5 cm above the block, and Search leaves the hand 14-17 cm aside of it (Orient's
 #: stylus approach from there used up its 75 steps in the pile), Orient the fingertip above the block's side.
-APPROACH_STAGES = {"building_blocks": ("orient", "grasp")}
+APPROACH_STAGES = {"building_blocks": ("retrieve", "orient", "grasp")}
 #: Stages a feasibility switch selects only while the target object is not lifted (``ChainParams.free_object_stages``):
 #: tool Grasp starts from the tool on the table, and its policy cannot put down a tool it holds, so F^reorient
 #: scoring a held tool below 1 keeps tool Reorient (the sequential rule), while a dropped tool goes back to it.

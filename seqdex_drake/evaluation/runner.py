@@ -4,7 +4,7 @@
 ``tool_positioning/tool_grasp``: the table and the tools), the chain controller of that family's chain
 (``diagrams/chains.yaml``) from a chain run directory's checkpoints (missing files: untrained stages, listed in
 :attr:`ChainRunner.missing`), and, given a Meshcat, the chain status display (``evaluation/display.py``).
-An episode is one block (Search -> Orient -> Grasp -> Insert to a goal on the baseplate) or one tool
+An episode is one block (Search -> retrieve -> Orient -> Grasp -> Insert to a goal on the baseplate) or one tool
 (grasp -> reorient): :meth:`start_block` / :meth:`start_tool` set the target and goal and restart the chain,
 :meth:`run` steps at the control rate until the object reaches its goal or the time limit.
 
@@ -56,7 +56,7 @@ from seqdex_drake.scenario import LoadScenario
 from seqdex_drake.scene.objects import SceneObjects
 from seqdex_drake.scene.piles import BOX_CENTER, BOX_INNER_HALF, LoadPiles
 from seqdex_drake.station import MakeControllerPlant, MakeStation, RefreshSampledOutputs
-from seqdex_drake.tasks.blocks_common import accessibility_order
+from seqdex_drake.tasks.blocks_common import accessibility_order, retrieve_order
 from seqdex_drake.tasks.insert import YAW_FLIP
 from seqdex_drake.tasks.registry import default_config
 from seqdex_drake.tasks.rewards import quaternion_angle
@@ -94,6 +94,9 @@ class RunConfig:
 
     family: str = "building_blocks"
     """``building_blocks`` or ``tool_positioning``."""
+    chain: str = ""
+    """The chain to run (``diagrams/chains.yaml``); "": the family's own. E.g. ``building_blocks_policies``, the
+    Building Blocks chain without the scripted retrieve, as the experiments that measured it ran."""
     run_dir: str | None = None
     """Chain run directory (``stages/<task>/best.pt|last.pt``, ``feasibility/<task>.pt``); None: all untrained."""
     max_switches: int = 3
@@ -137,7 +140,10 @@ class ChainRunner:
         if config.family not in SCENARIOS:
             raise ChainRunError(f"unknown task '{config.family}'; valid: {', '.join(SCENARIOS)}")
         self.config = config
-        self.tasks = list(LoadChain(config.family).stages)
+        try:
+            self.tasks = list(LoadChain(config.chain or config.family).stages)
+        except ValueError as error:
+            raise ChainRunError(str(error)) from error
         self.scenario = LoadScenario(SCENARIOS[config.family], scenario_text=f"{{random_seed: {config.seed}}}")
         stages, feasibility, self.missing = [(task, None) for task in self.tasks], None, []
         stage_configs, self.shipped = None, None
@@ -164,7 +170,7 @@ class ChainRunner:
                              untrained_seed=config.seed, stage_configs=stage_configs,
                              reengage_distance=REENGAGE,
                              travel_height=BLOCK_TRAVEL_HEIGHT if config.family == "building_blocks" else 0.0,
-                             approach_stages=APPROACH_STAGES.get(config.family, ()),
+                             approach_stages=self._in_chain(APPROACH_STAGES),
                              approach_timeout=APPROACH_TIMEOUT if config.family in TIMEOUT_FAMILIES else np.inf,
                              carry_stages=CARRY_STAGES.get(config.family, ()),
                              free_object_stages=FREE_OBJECT_STAGES.get(config.family, ()),
@@ -207,6 +213,10 @@ class ChainRunner:
         else:
             self.objects.park(self.context)
 
+    def _in_chain(self, settings: dict) -> tuple[str, ...]:
+        """The family's entry of ``settings`` (e.g. ``APPROACH_STAGES``) restricted to the stages of this chain."""
+        return tuple(task for task in settings.get(self.config.family, ()) if task in self.tasks)
+
     def _feasibility_files(self, run_dir: Path, found: list) -> list:
         if self.config.history is None:
             return found
@@ -231,10 +241,11 @@ class ChainRunner:
         return index % len(piles)
 
     def pick_block(self, block_type: int) -> str:
-        """The unused block of ``block_type`` to fetch next, the easiest first
-        (:func:`~seqdex_drake.tasks.blocks_common.accessibility_order`: where the hovering hand fits, on other
-        blocks rather than the box floor, upright, uncovered, at most a quarter roll from upright, highest), as a
-        perception system choosing among identical blocks would."""
+        """The unused block of ``block_type`` to fetch next, the easiest first, as a perception system choosing
+        among identical blocks would: with a retrieve stage in the chain, the easiest to take out of the pile
+        (:func:`~seqdex_drake.tasks.blocks_common.retrieve_order`: where the hand fits, uncovered, off the box floor,
+        highest), as the retrieve was measured; without one, the easiest to orient and grasp in place
+        (:func:`~seqdex_drake.tasks.blocks_common.accessibility_order`: also upright, room to roll)."""
         if block_type not in BLOCK_SPECS:
             raise ChainRunError(f"unknown block type {block_type}; valid types: {sorted(BLOCK_SPECS)}")
         q = self.objects.positions(self.context)
@@ -243,7 +254,8 @@ class ChainRunner:
         if not rows:
             raise ChainRunError(f"no block of type {block_type} left in the box (all 9 used)")
         blocks = [self.objects.index(n) for n in self.objects.names if n.startswith("block_")]
-        order = accessibility_order(q[blocks], [blocks.index(row) for row in rows])
+        order_of = retrieve_order if "retrieve" in self.tasks else accessibility_order
+        order = order_of(q[blocks], [blocks.index(row) for row in rows])
         return self.objects.names[blocks[order[0]]]
 
     def _reset_robot(self, arm_q=None) -> None:
@@ -404,6 +416,6 @@ class ChainRunner:
         approach (the first, and one per approach or carry stage)."""
         switcher = self.controller.GetSubsystemByName("switcher")
         family = self.config.family
-        approaches = 1 + len(APPROACH_STAGES.get(family, ())) + len(CARRY_STAGES.get(family, ()))
+        approaches = 1 + len(self._in_chain(APPROACH_STAGES)) + len(CARRY_STAGES.get(family, ()))
         return float(np.sum(switcher.stage_budgets)) * (1 + self.config.max_switches) * \
             self.scenario.control_period + APPROACH_TIMEOUT * approaches

@@ -122,6 +122,9 @@ class Task(abc.ABC):
 
     goal: bool = False
     pixels: bool = False
+    scripted: bool = False
+    """A scripted stage: its config's ``residual`` base acts alone (no policy is trained or shipped for it), and in
+    a chain it ends when the base says it is finished (``tasks/residual.base_finished``) or at its step budget."""
 
     def __init__(self, config: TaskConfig):
         self.config = config

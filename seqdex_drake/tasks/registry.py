@@ -2,12 +2,25 @@
 
 import sys
 
-from seqdex_drake.tasks import grasp, insert, lower, orient, reach, search, tool_grasp, tool_reorient, tools_common
+from seqdex_drake.tasks import (
+    grasp,
+    insert,
+    lower,
+    orient,
+    reach,
+    retrieve,
+    search,
+    tool_grasp,
+    tool_reorient,
+    tools_common,
+)
 from seqdex_drake.tasks.base import Task, TaskConfig
 
 #: name -> (default_config, Task class)
 REGISTRY = {
     "search": (search.default_config, search.SearchTask),
+    # Scripted (Task.scripted): takes the block Search uncovered out of the pile (tasks/retrieve.py).
+    "retrieve": (retrieve.default_config, retrieve.RetrieveTask),
     "orient": (orient.default_config, orient.OrientTask),
     "grasp": (grasp.default_config, grasp.GraspTask),
     "insert": (insert.default_config, insert.InsertTask),
@@ -25,6 +38,12 @@ KNOCK_OUTS = {"tool_grasp": tools_common.knock_out_tool}
 
 #: The paper's six sub-tasks (Building Blocks and Tool Positioning); the others serve the hand-over chain.
 PAPER_TASKS = ("search", "orient", "grasp", "insert", "tool_grasp", "tool_reorient")
+
+
+def is_scripted(name: str) -> bool:
+    """Whether sub-task ``name`` is a scripted stage (``Task.scripted``: nothing to train, no checkpoint)."""
+    default_config(name)  # Validates the name.
+    return bool(REGISTRY[name][1].scripted)
 
 
 def task_names() -> list[str]:

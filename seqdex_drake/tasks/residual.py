@@ -13,6 +13,12 @@ A base is a function of the observation (the env's policy observation, progress 
 only, with no hidden state, so the env and a policy system that see the same observation at the same step
 compute the same action. The residual is added before the scripted phases (``tasks/phases.py``), which still
 override the wrist in the scripted lift.
+
+Two optional hooks. A base whose rules need a fact about the episode's target that the observation lacks (the
+retrieve needs the block's length; the observation does not carry the block's type) has ``for_object(name)``,
+returning the base bound to that target (:func:`bind_base`); the env binds it when it sets its target, a deployed
+policy system when the chain's target is set. A base that knows when its work is over has
+``finished(observation, step)``; a scripted stage (``Task.scripted``) ends there rather than at its step budget.
 """
 
 from __future__ import annotations
@@ -25,6 +31,7 @@ import numpy as np
 from seqdex_drake.tasks.scripted.block_grasp_script import ScriptedBlockGrasp
 from seqdex_drake.tasks.scripted.block_insert_script import ScriptedBlockInsert
 from seqdex_drake.tasks.scripted.block_orient_script import ScriptedBlockOrient
+from seqdex_drake.tasks.scripted.block_retrieve_script import ScriptedBlockRetrieve
 from seqdex_drake.tasks.scripted.block_search_script import ScriptedBlockSearch
 from seqdex_drake.tasks.scripted.tool_grasp_script import ScriptedToolGrasp
 from seqdex_drake.tasks.scripted.tool_reorient_gait import FingerGait
@@ -57,6 +64,10 @@ def _block_orient_script() -> BaseController:
     return ScriptedBlockOrient()
 
 
+def _block_retrieve_script() -> BaseController:
+    return ScriptedBlockRetrieve()  # Unbound: bind_base gives it the target block (its length).
+
+
 def _tool_reorient_gait() -> BaseController:
     return FingerGait()
 
@@ -69,6 +80,7 @@ RESIDUAL_BASES: dict[str, Callable[[], BaseController]] = {
     "block_orient_script": _block_orient_script,  # The scripted fingertip roll (tasks/scripted/block_orient_script.py).
     "block_search_script": _block_search_script,  # The scripted search (tasks/scripted/block_search_script.py).
     "block_insert_script": _block_insert_script,  # The scripted block insertion (scripted/block_insert_script.py).
+    "block_retrieve_script": _block_retrieve_script,  # Out of the pile (tasks/scripted/block_retrieve_script.py).
 }
 
 
@@ -78,6 +90,19 @@ def make_base(name: str) -> BaseController:
         raise ValueError(f"unknown residual base {name!r}; valid bases: {', '.join(RESIDUAL_BASES)} "
                          f"(or '' for no base)")
     return RESIDUAL_BASES[name]()
+
+
+def bind_base(base: BaseController | None, object_name: str) -> BaseController | None:
+    """``base`` bound to the episode's target ``object_name`` (its ``for_object``), or ``base`` itself when it has
+    no such hook (or is None)."""
+    bind = getattr(base, "for_object", None)
+    return bind(object_name) if bind is not None else base
+
+
+def base_finished(base: BaseController | None, observation, step: int) -> bool:
+    """Whether ``base`` says its work is over at ``step`` (its ``finished``); False for bases without the hook."""
+    finished = getattr(base, "finished", None)
+    return bool(finished(observation, step)) if finished is not None else False
 
 
 def apply_residual(base: BaseController | None, observation, step: int, action: list[float]) -> list[float]:

@@ -38,9 +38,11 @@ on an end, which Orient then fails to stand up.
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
-from seqdex_drake.modeling.blocks import TOTAL_HEIGHT
+from seqdex_drake.modeling.blocks import BLOCK_SPECS, TOTAL_HEIGHT
 from seqdex_drake.observation_layout import OBJECT_POSE, PALM_POSE, rotation_matrix
 from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q, ALLEGRO_Q_MAX, ALLEGRO_Q_MIN, unscale_limits_to_action
 from seqdex_drake.scene.piles import BOX_CENTER, BOX_INNER_HALF
@@ -79,9 +81,13 @@ def on_staging_area(p_W: np.ndarray, margin: float = 0.03) -> bool:
 class ScriptedBlockRetrieve:
     """The scripted retrieve (see the module docstring): :meth:`act` of the observation and the step only.
 
+    The target block's length is a parameter of the episode, not of the observation (which does not carry the
+    block's type): construct with ``length``, or without and bind the target with :meth:`for_object` (as the env
+    and a deployed policy system do once they know the target, ``tasks/residual.py``).
+
     Args:
-        length: the target block's length [m] (its type's footprint length; the observation does not carry it),
-            for its lowest point.
+        length: the target block's length [m] (its type's footprint length), for its lowest point; None: unbound
+            (:meth:`act` refuses until :meth:`for_object` gives the target).
         stage_xy: where the block's centre is set down (world xy) [m]; default the staging area's centre.
         attempts, attempt_steps: the grip's attempts and the steps of each window.
         carry_z: the grasp centre's height while carrying [m]; the box's walls end 0.165 m above its floor.
@@ -95,13 +101,13 @@ class ScriptedBlockRetrieve:
         squeeze, depth, x_min: Grasp's pinch (:class:`ScriptedBlockGrasp`).
     """
 
-    def __init__(self, length: float, stage_xy=None, attempts: int = 3, attempt_steps: int = 100,
+    def __init__(self, length: float | None = None, stage_xy=None, attempts: int = 3, attempt_steps: int = 100,
                  carry_z: float = 0.88, transfer_z: float = 0.78, over_y: float = -0.10, held_radius: float = 0.04,
                  stage_tolerance: float = 0.01, speed: float = 0.6, gain: float = 0.4, squeeze: float = 0.1,
                  depth: float = 0.022, x_min: float = 0.085):
-        if not 0.0 < length <= 0.2:
+        if length is not None and not 0.0 < length <= 0.2:
             raise ValueError(f"length must be the block's length in metres (0.03 to 0.12 for Mega Bloks), got {length}")
-        self.length = float(length)
+        self.length = None if length is None else float(length)
         self.stage_xy = (STAGING_LOW + STAGING_HIGH) / 2 if stage_xy is None else np.asarray(stage_xy, dtype=float)
         self.attempts, self.attempt_steps = int(attempts), int(attempt_steps)
         self.clear_height = 0.10  # C over the block's bottom before the fingers straighten [m].
@@ -117,12 +123,32 @@ class ScriptedBlockRetrieve:
     def reset(self, env) -> None:
         pass
 
+    def for_object(self, name: str) -> ScriptedBlockRetrieve:
+        """This retrieve bound to target ``name`` (a pile block ``block_<type>_<k>``): its length is the type's."""
+        parts = str(name).split("_")
+        if len(parts) != 3 or parts[0] != "block" or not parts[1].isdigit() or int(parts[1]) not in BLOCK_SPECS:
+            raise ValueError(f"the retrieve takes a pile block (block_<type>_<k>, types {sorted(BLOCK_SPECS)}) as "
+                             f"its target, got {name!r}")
+        bound = copy.copy(self)
+        bound.length = float(BLOCK_SPECS[int(parts[1])].footprint[0])
+        return bound
+
+    def finished(self, observation, step: int) -> bool:
+        """Whether the retrieve is over: the block set down and the open hand back up ("done"), or given up."""
+        return self.phase(observation, step) in ("done", "give_up")
+
+    def _length(self) -> float:
+        if self.length is None:
+            raise ValueError("the retrieve has no target block: bind it with for_object('block_<type>_<k>') or "
+                             "construct it with length=")
+        return self.length
+
     def phase(self, observation, step: int) -> str:
         """The rule that applies: "grip", "lift", "regrip" (a pinch that did not take), "transfer", "lower",
         "release", "rise" (the block is on the staging area, out of the hand), "done" (and the open hand is back
         at ``carry_z``) or "give_up"."""
         o = np.asarray(observation, dtype=float)
-        centre, bottom = block_geometry(o, self.length)
+        centre, bottom = block_geometry(o, self._length())
         C = self._grasp_centre(o)
         held = self._reach(o, centre, C) < self.held_radius
         local = step % self.attempt_steps
@@ -143,7 +169,7 @@ class ScriptedBlockRetrieve:
         """The action for ``observation`` (the env's, 159 or 160 entries) at ``step``."""
         o = np.asarray(observation, dtype=float)
         phase = self.phase(o, step)
-        centre, bottom = block_geometry(o, self.length)
+        centre, bottom = block_geometry(o, self._length())
         C = self._grasp_centre(o)
         if phase == "grip":  # Grasp's pinch on the window's step count, aimed at the centre and the lowest point.
             aimed = o.copy()
