@@ -12,7 +12,9 @@ physical test (``ChainRunner.is_success``: within 2 cm and 0.2 rad of its goal, 
     python experiments/main_command_seeds.py --test     # one seed, the first block cut to 0.5 s, for CI
 
 Writes JSON: per block the seed, its index in the manual, type, the block fetched, whether it was placed, its
-errors, simulated time and switches; and the placed counts per manual step. About 1.5 min per block on a core.
+errors, simulated time and switches, the funnel (on the staging area when Orient first starts, upright when Grasp
+first starts, lifted when Insert first starts); and the placed counts per manual step. About 4 min per block on a
+core.
 """
 
 import argparse
@@ -28,6 +30,9 @@ ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ROOT / "checkpoints" / "building_blocks"
 #: The most seeds one run takes.
 MAX_SEEDS = 1000
+#: The funnel's upright (the block's z axis within 20 deg of world z) and lifted (0.1 m above its start) tests, as
+#: ``experiments/retrieve_chain.py``'s.
+UPRIGHT_DOT, LIFTED = float(np.cos(np.radians(20.0))), 0.1
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -53,6 +58,33 @@ def parse_seeds(text: str) -> list[int]:
     return seeds
 
 
+class Funnel:
+    """Where a block got to, from the object as each stage first started: taken out of the pile onto the staging
+    area when Orient starts (with a retrieve stage), upright when Grasp starts, lifted when Insert starts."""
+
+    def __init__(self):
+        self.entries: dict[str, tuple] = {}
+        self.start_z = None
+
+    def record(self, runner) -> bool:
+        from seqdex_drake.tasks.scripted.block_retrieve_script import on_staging_area
+
+        X = runner.object_pose()
+        if self.start_z is None:
+            self.start_z = float(X.translation()[2])
+        stage = runner.tasks[int(runner.chain_output("active_stage")[0])]
+        if stage not in self.entries:
+            self.entries[stage] = (on_staging_area(X.translation()), float(X.rotation().matrix()[2, 2]),
+                                   float(X.translation()[2]) - self.start_z)
+        return True
+
+    def summary(self) -> dict:
+        orient, grasp, insert = (self.entries.get(stage) for stage in ("orient", "grasp", "insert"))
+        return {"staged_at_orient": bool(orient and orient[0]),
+                "upright_at_grasp": bool(grasp and grasp[1] >= UPRIGHT_DOT),
+                "lifted_at_insert": bool(insert and insert[2] >= LIFTED)}
+
+
 def run_seed(job: tuple) -> list[dict]:
     """The manual's first ``blocks`` blocks from ``seed`` (a fresh chain, as the main command builds it)."""
     seed, checkpoints, manual, blocks, max_switches, time_limit = job
@@ -65,11 +97,13 @@ def run_seed(job: tuple) -> list[dict]:
     for index, step in enumerate(LoadManual(manual).steps[:blocks]):
         start = time.perf_counter()
         name = runner.start_block(step.block_type, goal_vector(step))
-        outcome = runner.run(time_limit or runner.episode_limit())
+        funnel = Funnel()
+        outcome = runner.run(time_limit or runner.episode_limit(), on_tick=funnel.record)
         rows.append({"seed": seed, "step": index, "block_type": step.block_type, "block": name,
                      "placed": bool(outcome.success), "position_error": round(float(outcome.position_error), 4),
                      "rotation_error": round(float(outcome.rotation_error), 4), "time": round(outcome.time, 2),
                      "switches": int(outcome.switches), "simulator_error": outcome.simulator_error,
+                     **funnel.summary(),
                      "wall_seconds": round(time.perf_counter() - start, 1)})
     return rows
 

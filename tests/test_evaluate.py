@@ -62,6 +62,8 @@ def test_bad_input(tmp_path):
         evaluate.run(parse("--run-dir", str(tmp_path / "missing"), "--test"))
     with pytest.raises(InputError, match="at least 1"):
         evaluate.run(parse("--run-dir", str(tmp_path), "--episodes", "0"))
+    with pytest.raises(InputError, match="--chain: .*no_such_chain"):
+        evaluate.run(parse("--run-dir", str(tmp_path), "--chain", "no_such_chain", "--test"))
     (tmp_path / "feasibility").mkdir()
     config = FeasibilityConfig(history=2, d_model=8, heads=2, layers=1, feedforward=8)
     save_feasibility(tmp_path / "feasibility" / "tool_reorient.pt", build_feasibility_model(160, config), config, 1.0,

@@ -50,6 +50,9 @@ def add_parser(commands) -> None:
     parser.add_argument("--workers", type=int, default=1,
                         help="processes running the episodes, seeds split over them (default: 1)")
     parser.add_argument("--resume", action="store_true", help="keep the episodes already in <out>/episodes.jsonl")
+    parser.add_argument("--chain", default="",
+                        help="another chain of the family's stages (diagrams/chains.yaml), e.g. "
+                             "building_blocks_policies (without the scripted retrieve); default: the family's own")
     parser.add_argument("--test", action="store_true", help="a tiny budget for smoke tests and CI")
 
 
@@ -69,7 +72,10 @@ def run(args) -> int:
         objects = None if args.objects is None else object_keys(args.task, args.objects)
     except ValueError as error:
         raise CliError(f"--objects: {error}") from error
-    stages = len(LoadChain(args.task).stages)
+    try:
+        stages = len(LoadChain(args.chain or args.task).stages)
+    except ValueError as error:
+        raise CliError(f"--chain: {error}") from error
     test_ablation = objects[:1] if objects else ((1,) if args.task == "building_blocks" else (0,))
     config = EvalConfig(
         family=args.task, run_dir=str(run_dir), out_dir=args.out or str(run_dir / "evaluation"), episodes=episodes,
@@ -78,7 +84,7 @@ def run(args) -> int:
         time_limit=TEST_SECONDS if args.test else None,
         ablation_objects=test_ablation if args.test else None,
         untrained_hidden_sizes=(64, 64) if args.test else None, resume=args.resume, objects=objects,
-        workers=args.workers, label=args.label)
+        workers=args.workers, label=args.label, chain=args.chain)
     available = 0 if args.skip_ablations else history_available(config)
     total = total_episodes(config, available, ablations=not args.skip_ablations)
     bar = progress_bar(total, f"evaluate {args.task}")

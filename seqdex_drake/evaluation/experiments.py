@@ -58,6 +58,8 @@ class EvalConfig:
     """The main table's row name (default: "ours (max N switches)")."""
     workers: int = 1
     """Processes running the episodes (seeds round-robin over at most ``len(seeds)`` of them)."""
+    chain: str = ""
+    """The chain to run (``diagrams/chains.yaml``; ``RunConfig.chain``); "": the family's own."""
 
 
 def selected_objects(config: EvalConfig, subset: tuple | None = None) -> list[tuple]:
@@ -190,7 +192,7 @@ class Evaluation:
     def history_ablation(self) -> list[Path]:
         objects = self._ablation_objects()
         run_dir = Path(self.config.run_dir)
-        tasks = ChainTasks(self.config.family)
+        tasks = ChainTasks(self.config.family, self.config.chain)
         rows, names, notes = [], [], []
         for h in HISTORY_SETTINGS:
             missing = [run_dir / "feasibility" / f"{t}_h{h}.pt" for t in tasks[1:]]
@@ -208,7 +210,7 @@ class Evaluation:
 
     def scatter(self) -> Path:
         stage = SCATTER_STAGE[self.config.family]
-        tasks = ChainTasks(self.config.family)
+        tasks = ChainTasks(self.config.family, self.config.chain)
         previous = tasks[tasks.index(stage) - 1]
         note = (f"no scores: {Path(self.config.run_dir) / 'feasibility' / (stage + '.pt')} is missing"
                 if not self.scatter_c else "")
@@ -217,8 +219,9 @@ class Evaluation:
                                   f"orientation at scored ticks", note)
 
 
-def ChainTasks(family: str) -> list[str]:
-    return list(LoadChain(family).stages)
+def ChainTasks(family: str, chain: str = "") -> list[str]:
+    """The stages of ``chain`` (``diagrams/chains.yaml``), "": of the family's own chain."""
+    return list(LoadChain(chain or family).stages)
 
 
 def _key(record: dict) -> tuple:
@@ -237,7 +240,7 @@ def total_episodes(config: EvalConfig, history_available: int, ablations: bool =
 
 
 def history_available(config: EvalConfig) -> int:
-    tasks = ChainTasks(config.family)
+    tasks = ChainTasks(config.family, config.chain)
     return sum(all((Path(config.run_dir) / "feasibility" / f"{t}_h{h}.pt").is_file() for t in tasks[1:])
                for h in HISTORY_SETTINGS)
 
