@@ -48,20 +48,14 @@ def retrieve(env, q_pile: np.ndarray, block_type: int, steps: int, seed: int) ->
     """Resets ``env`` (seed ``seed``: nothing of an earlier episode carries over), restores ``q_pile``, picks the
     block and runs the scripted retrieve; returns its record."""
     from seqdex_drake.modeling.blocks import BLOCK_SPECS
-    from seqdex_drake.robots.allegro import ALLEGRO_OPEN_Q
-    from seqdex_drake.tasks.blocks_common import pick_keys, retrieve_order
+    from seqdex_drake.tasks.blocks_common import pick_keys
+    from seqdex_drake.tasks.retrieve import start_retrieve
     from seqdex_drake.tasks.scripted.block_retrieve_script import ScriptedBlockRetrieve
 
     env.reset(seed=seed)
     names = env.objects.names
-    env.objects.set_positions(env.context, q_pile, frozen=np.zeros(len(names), dtype=bool))
+    row = names.index(start_retrieve(env, q_pile, block_type))  # The retrieve stage's own start (tasks/retrieve.py).
     blocks = [k for k, name in enumerate(names) if name.startswith("block_")]
-    rows = [k for k in blocks if names[k].startswith(f"block_{block_type}_")]
-    row = blocks[retrieve_order(q_pile[blocks], [blocks.index(k) for k in rows])[0]]
-    env.objects.freeze_far_from(env.context, q_pile[row, 4:])
-    env.set_target(names[row])
-    near = np.linalg.norm(q_pile[:, 4:6] - q_pile[row, 4:6], axis=1) < 0.08
-    env.set_robot(env.hover_arm(np.r_[q_pile[row, 4:6], np.max(q_pile[near, 6]) + 0.03]), ALLEGRO_OPEN_Q)
     script = ScriptedBlockRetrieve(length=BLOCK_SPECS[block_type].footprint[0])
     observation, phase, step = env.observation(), "", 0
     for step in range(steps):

@@ -141,7 +141,9 @@ def run(args) -> int:
         for line in runner.missing:
             print(f"  {line}", flush=True)
     else:
-        print("every stage has a trained policy", flush=True)
+        scripted = [task for task, policy in zip(runner.tasks, runner.policies, strict=True) if policy.scripted]
+        print("every stage has a trained policy" + (f" (scripted, no policy: {', '.join(scripted)})" if scripted
+                                                   else ""), flush=True)
     if args.record:
         meshcat.StartRecording(set_visualizations_while_recording=True)
     duration = TEST_SECONDS if args.test else args.duration
