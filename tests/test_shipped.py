@@ -84,6 +84,12 @@ def test_a_scripted_stage_is_not_shipped_and_a_policy_listed_for_it_is_refused(t
     path.write_text(json.dumps(manifest))
     with pytest.raises(ShippedChainError, match="retrieve stage, which is scripted"):
         load_shipped_chain(folder, "building_blocks", tasks, sizes)
+    # Shipped from a run of the learned stages alone (the pipeline trains no scripted stage): it loads as the chain.
+    learned = tmp_path / "learned"
+    ship_chain(learned, "building_blocks_policies", [StageRecord("orient", tmp_path / "o.pt")])
+    assert load_shipped_chain(learned, "building_blocks", tasks, sizes).policies[2] is not None
+    with pytest.raises(ShippedChainError, match="holds the 'building_blocks_policies' chain, not 'tool_positioning'"):
+        load_shipped_chain(learned, "tool_positioning", TASKS, SIZES)
 
 
 def test_a_field_added_to_the_task_config_since_shipping_is_tolerated_at_its_default(shipped):

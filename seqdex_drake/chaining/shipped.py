@@ -10,7 +10,8 @@ also reads it, plus a manifest)::
                                                    the optimizer's moments and the env state left out)
     checkpoints/<chain>/feasibility/<task>.pt      F predicting <task>'s return (with its threshold h)
 
-A scripted stage (``Task.scripted``: its base acts alone) has no policy and no manifest entry.
+A scripted stage (``Task.scripted``: its base acts alone) has no policy and no manifest entry; a folder shipped from
+a run of the chain's learned stages alone (``building_blocks_policies``) loads as the chain (``building_blocks``).
 
 :func:`ship_chain` writes one from training runs; :func:`load_shipped_chain` checks one before anything is built:
 the manifest's format and version, every file present and whole (its hash), each policy's observation spec
@@ -27,6 +28,7 @@ import shutil
 from pathlib import Path
 
 from seqdex_drake.atomic import atomic_write
+from seqdex_drake.chaining.chain import LoadChain
 from seqdex_drake.rl.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from seqdex_drake.tasks.registry import default_config, is_scripted
 from seqdex_drake.tasks.run_config import config_dict, observation_spec, same_task_config, task_config
@@ -138,6 +140,16 @@ def _checked_file(folder: Path, entry: dict, what: str) -> Path:
     return path
 
 
+def _learned_stages_of(shipped_chain, tasks: list[str]) -> bool:
+    """Whether ``shipped_chain`` (a manifest's chain name) is the chain of ``tasks``' learned stages, the scripted
+    ones left out (``building_blocks_policies`` for ``building_blocks``: the pipeline trains learned stages only)."""
+    try:
+        stages = LoadChain(str(shipped_chain)).stages
+    except ValueError:
+        return False
+    return stages == [task for task in tasks if not is_scripted(task)]
+
+
 def load_shipped_chain(folder: str | Path, chain: str, tasks: list[str], observation_sizes: dict[str, int]
                        ) -> ShippedChain:
     """Checks the shipped folder for ``chain`` (stages ``tasks``; ``observation_sizes`` per task) and returns its
@@ -155,7 +167,7 @@ def load_shipped_chain(folder: str | Path, chain: str, tasks: list[str], observa
     if manifest.get("version") != VERSION:
         raise ShippedChainError(f"{path} has version {manifest.get('version')}; this code reads version {VERSION}: "
                                 f"use the code of commit {manifest.get('commit') or '(unknown)'} or re-ship")
-    if manifest.get("chain") != chain:
+    if manifest.get("chain") != chain and not _learned_stages_of(manifest.get("chain"), tasks):
         raise ShippedChainError(f"{path} holds the {manifest.get('chain')!r} chain, not {chain!r}")
     unknown = sorted(set(manifest["stages"]) - set(tasks))
     if unknown:
