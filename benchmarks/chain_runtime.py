@@ -98,15 +98,17 @@ def time_shipped_tick(folder: str, family: str, ticks: int) -> tuple[float, floa
     from seqdex_drake.chaining.feasibility_io import load_feasibility
     from seqdex_drake.chaining.shipped import load_shipped_chain
     from seqdex_drake.controller.chain_controller import StagePolicyParams
+    from seqdex_drake.tasks.registry import is_scripted
 
     tasks = list(LoadChain(family).stages)
     chain = load_shipped_chain(folder, family, tasks, observation_sizes())
     sizes = [observation_sizes()[task] for task in tasks]
     params = [StagePolicyParams(config, PERIOD) for config in chain.configs]
     time_steps = tuple(p.time_steps for p in params)
-    policies = [PolicySystem.untrained(size, seed=i, params=p) if path is None else
+    policies = [PolicySystem.scripted(size, p) if is_scripted(task) else  # Its base alone (inactive here).
+                PolicySystem.untrained(size, seed=i, params=p) if path is None else
                 PolicySystem.from_checkpoint(path, size, p)
-                for i, (path, size, p) in enumerate(zip(chain.policies, sizes, params, strict=True))]
+                for i, (task, path, size, p) in enumerate(zip(tasks, chain.policies, sizes, params, strict=True))]
     feasibility = [None if path is None else load_feasibility(path) for path in chain.feasibility]
     return _time_systems(feasibility, sizes, policies, 1, ticks, SwitcherParams(time_steps=time_steps))
 

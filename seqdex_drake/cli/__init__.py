@@ -17,20 +17,28 @@ from seqdex_drake.user_input import MAX_SEED, check_creatable, check_seed  # noq
 from seqdex_drake.user_input import InputError as CliError
 
 
-def _chain_links() -> dict[str, str]:
-    links = {}
+def _chain_links() -> list[tuple[str, str]]:
+    """Every (stage, next stage) pair of the chains in ``diagrams/chains.yaml``, in file order, without repeats."""
+    links = []
     for name in ChainNames():
         stages = LoadChain(name).stages
-        links.update(zip(stages, stages[1:], strict=False))
+        links += [link for link in zip(stages, stages[1:], strict=False) if link not in links]
     return links
 
 
-#: The sub-task that follows each one in its chain of ``diagrams/chains.yaml`` (Building Blocks: search ->
-#: orient -> grasp -> insert; Tool Positioning: tool_grasp -> tool_reorient; the hand-over chain: reach ->
-#: lower). The last task of a chain has no entry.
-NEXT_TASK = _chain_links()
-#: The sub-task that precedes each one (the inverse of :data:`NEXT_TASK`).
-PREVIOUS_TASK = {target: source for source, target in NEXT_TASK.items()}
+#: The sub-tasks that follow each one in the chains of ``diagrams/chains.yaml`` (Building Blocks: search ->
+#: retrieve -> orient -> grasp -> insert, and its learned stages search -> orient; Tool Positioning: tool_grasp ->
+#: tool_reorient; the hand-over chain: reach -> lower), first chain first. The last task of a chain has none.
+NEXT_TASKS: dict[str, list[str]] = {}
+#: The sub-tasks that precede each one (the inverse of :data:`NEXT_TASKS`): a terminal buffer from any of them
+#: can start it.
+PREVIOUS_TASKS: dict[str, list[str]] = {}
+for _source, _target in _chain_links():
+    NEXT_TASKS.setdefault(_source, []).append(_target)
+    PREVIOUS_TASKS.setdefault(_target, []).append(_source)
+#: The sub-task whose episodes ``seqdex collect`` collects a task's terminal states for: the first of its
+#: :data:`NEXT_TASKS` (Search: the retrieve of the Building Blocks chain).
+NEXT_TASK = {source: targets[0] for source, targets in NEXT_TASKS.items()}
 
 #: ``--objects``' help (``seqdex rollout``, ``seqdex collect``).
 OBJECTS_HELP = ("draw the reset's object from these only: block types 1 .. 8 (6-8 unseen in training), or tools "

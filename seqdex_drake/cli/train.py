@@ -32,7 +32,7 @@ import numpy as np
 from seqdex_drake.atomic import atomic_write
 from seqdex_drake.chaining.terminal_buffer import TerminalBuffer
 from seqdex_drake.chaining.wrappers import InitialStateVectorEnv  # noqa: F401 (also imported from here by tests)
-from seqdex_drake.cli import PREVIOUS_TASK, CliError, check_creatable, check_seed
+from seqdex_drake.cli import PREVIOUS_TASKS, CliError, check_creatable, check_seed
 from seqdex_drake.cli.run_lock import RunLock
 from seqdex_drake.env_state import SceneHandoffError
 from seqdex_drake.envs.scene_handoff import check_carried
@@ -59,14 +59,19 @@ TEST_HORIZON = 8
 
 def load_initial_states(path: str, task: str):
     """The terminal buffer at ``path`` for starting ``task`` episodes; :class:`CliError` if it cannot be used."""
-    source = PREVIOUS_TASK.get(task)
-    if source is None:
+    sources = PREVIOUS_TASKS.get(task)
+    if sources is None:
         raise CliError(f"{task} is the first sub-task of its chain; it starts from the scenario, not from a "
                        f"terminal buffer (drop --initial-states)")
     try:
-        buffer = TerminalBuffer.load(path, expected_task=task, expected_source=source)
+        buffer = TerminalBuffer.load(path, expected_task=task,
+                                     expected_source=sources[0] if len(sources) == 1 else None)
     except (FileNotFoundError, ValueError) as error:
         raise CliError(str(error)) from error
+    source = buffer.source_task
+    if source not in sources:
+        raise CliError(f"terminal buffer {path} has source task {source!r}, but {task} follows "
+                       f"{' or '.join(repr(s) for s in sources)} in its chains")
     if not buffer.successes.any():
         raise CliError(f"terminal buffer {path} has no successful {source} episodes to start {task} from; "
                        f"train {source} further and run seqdex collect --task {source} again")

@@ -2,8 +2,8 @@
 
 Every sub-task of :mod:`seqdex_drake.tasks.registry` gets the id ``seqdex/<CamelCaseName>-v0``
 (:data:`GYM_IDS`): ``seqdex/Search-v0``, ``Retrieve`` (scripted: its base acts, the action corrects it),
-``Orient``, ``Grasp``, ``Insert``, ``ToolGrasp``, ``ToolReorient`` and the hand-over chain's ``Reach`` and ``Lower``. Registration is lazy (an entry point string): nothing is built
-until ``gym.make``.
+``Orient``, ``Grasp``, ``Insert``, ``ToolGrasp``, ``ToolReorient`` and the hand-over chain's ``Reach`` and
+``Lower``. Registration is lazy (an entry point string): nothing is built until ``gym.make``.
 
 The spec's ``max_episode_steps`` is the task's default ``episode_length``; the env also truncates itself at its
 config's ``episode_length``, and :class:`~seqdex_drake.envs.wrappers.EpisodeLengthSync` (the spec's additional
