@@ -141,7 +141,7 @@ def run(args) -> int:
         for line in runner.missing:
             print(f"  {line}", flush=True)
     else:
-        scripted = [task for task, policy in zip(runner.tasks, runner.policies, strict=True) if policy.scripted]
+        scripted = [task for task, policy in zip(runner.tasks, runner.policies, strict=True) if policy.is_scripted]
         print("every stage has a trained policy" + (f" (scripted, no policy: {', '.join(scripted)})" if scripted
                                                    else ""), flush=True)
     if args.record:

@@ -303,7 +303,7 @@ def MakeChainController(scenario: Scenario, stages: Sequence[tuple[str, object]]
             builder.Connect(assemblers[layouts[i - 1]].GetOutputPort("observation"),
                             switcher.GetInputPort(f"observation.{i - 1}"))
     builder.Connect(osc.GetOutputPort("approach_active"), switcher.GetInputPort("approach_active"))
-    scripted = [policy for policy in policies if policy.scripted]
+    scripted = [policy for policy in policies if policy.is_scripted]
     if scripted:  # A scripted stage ends when its script is finished (only the active system's output is 1).
         done = builder.AddNamedSystem("scripted_done", Adder(len(scripted), 1))
         for k, policy in enumerate(scripted):

@@ -19,7 +19,7 @@ Scripted stages. :meth:`PolicySystem.scripted` hosts no network: the stage's scr
 ``tasks/residual.py``) acts alone, as a scripted task's env applies it (``Task.scripted``, e.g. the Building Blocks
 retrieve). A base bound to the chain's target (its ``for_object``: the retrieve needs the block's length) is bound
 from the ``target_body`` parameter (:meth:`PolicySystem.set_target_body`, which ``SetChainTarget`` calls) and the
-station plant's body names. Output ``finished`` is 1 from the tick after the base says its work is over.
+station plant's object names by body index. Output ``finished`` is 1 from the tick after the base says its work is over.
 
 Inference. By default (``PolicyParams.inference = "numpy"``) the action mean comes from a
 :class:`~seqdex_drake.controller.inference.PolicySnapshot`: the actor and its normalizer copied into float32 numpy
@@ -144,7 +144,7 @@ class PolicySystem(LeafSystem):
         self._bound: dict[int, object] = {}  # Target body index -> the base bound to it (a pure function's cache).
         self._body_names = list(body_names or [])
         self.model = model.eval() if model is not None else None
-        self.scripted = model is None
+        self.is_scripted = model is None  # A scripted stage (see scripted()).
         self._snapshot = PolicySnapshot(model) if params.inference == "numpy" and model is not None else None
         self.trained = bool(trained)
         self.source = str(source)
