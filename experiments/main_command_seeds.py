@@ -64,12 +64,14 @@ class Funnel:
 
     def __init__(self):
         self.entries: dict[str, tuple] = {}
-        self.start_z = None
+        self.start_z, self.refetches = None, 0
 
     def record(self, runner) -> bool:
         from seqdex_drake.tasks.scripted.block_retrieve_script import on_staging_area
 
         X = runner.object_pose()
+        if runner.refetches != self.refetches:  # Another block fetched: its own funnel.
+            self.entries, self.start_z, self.refetches = {}, None, runner.refetches
         if self.start_z is None:
             self.start_z = float(X.translation()[2])
         stage = runner.tasks[int(runner.chain_output("active_stage")[0])]
@@ -100,6 +102,7 @@ def run_seed(job: tuple) -> list[dict]:
         funnel = Funnel()
         outcome = runner.run(time_limit or runner.episode_limit(), on_tick=funnel.record)
         rows.append({"seed": seed, "step": index, "block_type": step.block_type, "block": name,
+                     "refetches": outcome.refetches, "fetched": runner.target,
                      "placed": bool(outcome.success), "position_error": round(float(outcome.position_error), 4),
                      "rotation_error": round(float(outcome.rotation_error), 4), "time": round(outcome.time, 2),
                      "switches": int(outcome.switches), "simulator_error": outcome.simulator_error,

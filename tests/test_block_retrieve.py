@@ -202,3 +202,34 @@ def test_retrieve_chain_short_run_writes_its_episodes_alike_whatever_ran_before_
     assert {**rows[1], "wall_s": 0} == {**first, "wall_s": 0}
     bad = retrieve_chain("--episodes", "5-2")
     assert bad.returncode == 2 and "--episodes must be A-B" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_a_retrieve_that_ends_without_the_block_staged_fetches_the_next_block_of_its_type_on_the_same_clock():
+    """``evaluation/refetch.py`` in the whole chain: a 3-tick retrieve budget cannot take the block out, so the
+    runner fetches the next block of the type (the chain restarts on it, the episode's clock running on), at most
+    ``refetches`` times; the watch never fires without a retrieve stage, and a negative cap is refused."""
+    from seqdex_drake.evaluation.refetch import RetrieveWatch
+    from seqdex_drake.evaluation.runner import ChainRunError, ChainRunner, RunConfig
+    from seqdex_drake.manual import LoadManual, goal_vector
+
+    runner = ChainRunner(RunConfig(family="building_blocks", run_dir=str(REPO / "checkpoints" / "building_blocks"),
+                                   max_switches=0, seed=3, stage_steps=(1, 3, 1, 1, 1), refetches=1))
+    step = LoadManual("small_wall").steps[0]
+    first = runner.start_block(step.block_type, goal_vector(step))
+    targets, times = [], []
+
+    def watch(r: ChainRunner) -> bool:
+        if not targets or targets[-1] != r.target:
+            targets.append(r.target)
+            times.append(r.context.get_time())
+        return r.context.get_time() < 6.0
+
+    outcome = runner.run(runner.episode_limit(), on_tick=watch)
+    assert outcome.refetches == 1 == runner.refetches and len(targets) == 2 and targets[0] == first
+    assert targets[1] != first and targets[1].startswith(f"block_{step.block_type}_")
+    assert times[1] > 1.0 and outcome.time >= 6.0  # One clock: the refetch did not restart the episode's time.
+    assert runner.start_block(step.block_type, goal_vector(step)) not in targets and runner.refetches == 0
+    assert RetrieveWatch(["search", "orient"], 2).stage is None
+    assert not RetrieveWatch(["search", "orient"], 2).due(1, lambda: False)
+    with pytest.raises(ChainRunError, match="refetches must be >= 0"):
+        ChainRunner(RunConfig(family="building_blocks", refetches=-1))

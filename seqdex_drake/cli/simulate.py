@@ -149,9 +149,13 @@ def run(args) -> int:
     duration = TEST_SECONDS if args.test else args.duration
     rng = np.random.default_rng(args.seed)
     start, successes, interrupted = time.perf_counter(), 0, False
-    stage = [-1]
+    stage, fetched = [-1], [""]
 
     def on_tick(r) -> bool:
+        if r.target != fetched[0]:
+            print(f"  t={r.context.get_time():6.2f} s  {fetched[0]} not taken out of the pile; fetching {r.target}",
+                  flush=True)
+            fetched[0], stage[0] = r.target, -1
         active = int(r.chain_output("active_stage")[0])
         if active != stage[0]:
             scores = r.chain_output("feasibility_scores")
@@ -169,7 +173,7 @@ def run(args) -> int:
                 name = begin()
             except ChainRunError as error:
                 raise CliError(str(error)) from error
-            stage[0] = -1
+            stage[0], fetched[0] = -1, name
             print(f"{label} ({name})", flush=True)
             if meshcat is not None and not args.test:
                 runner.simulator.set_target_realtime_rate(1.0)

@@ -48,7 +48,13 @@ def run_episode(runner: ChainRunner, config, key, seed: int, episode: int,
     start_height = runner.object_pose().translation()[2]
     entries: dict[str, list[float]] = {}  # Per stage, the object as the stage first started: [up_z, lift (m)].
 
+    refetched = [0]
+
     def record(r: ChainRunner) -> bool:
+        nonlocal start_height
+        if r.refetches != refetched[0]:  # Another block of the type fetched: the funnel is the new block's.
+            entries.clear()
+            refetched[0], start_height = r.refetches, r.object_pose().translation()[2]
         entered = r.tasks[int(r.chain_output("active_stage")[0])]
         if entered not in entries:
             X = r.object_pose()
@@ -66,7 +72,8 @@ def run_episode(runner: ChainRunner, config, key, seed: int, episode: int,
               "last_stage": outcome.last_stage, "position_error": outcome.position_error,
               "rotation_error": outcome.rotation_error, "stage_entries": entries, "start": start,
               **({"simulator_error": outcome.simulator_error} if outcome.simulator_error else {}),
-              **({"fell": True} if outcome.fell else {})}
+              **({"fell": True} if outcome.fell else {}),
+              **({"refetches": outcome.refetches, "fetched": runner.target} if outcome.refetches else {})}
     return result, rpy, scores
 
 

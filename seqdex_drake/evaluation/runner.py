@@ -46,6 +46,7 @@ from seqdex_drake.evaluation.chain_settings import (
     TIMEOUT_FAMILIES,
 )
 from seqdex_drake.evaluation.display import ChainStatusDisplay
+from seqdex_drake.evaluation.refetch import RetrieveWatch
 from seqdex_drake.harness import ResolvePackageUrl
 from seqdex_drake.modeling.blocks import BLOCK_SPECS
 from seqdex_drake.modeling.tools import TOOL_SPECS
@@ -59,7 +60,9 @@ from seqdex_drake.station import MakeControllerPlant, MakeStation, RefreshSample
 from seqdex_drake.tasks.blocks_common import accessibility_order, retrieve_order
 from seqdex_drake.tasks.insert import YAW_FLIP
 from seqdex_drake.tasks.registry import default_config
+from seqdex_drake.tasks.retrieve import block_staged
 from seqdex_drake.tasks.rewards import quaternion_angle
+from seqdex_drake.tasks.search import block_type_of
 from seqdex_drake.tasks.tools_common import HELD_LIFT, TABLE_TOP, TOOL_XY
 
 #: Task family -> station scenario.
@@ -109,6 +112,10 @@ class RunConfig:
     """Scenario seed (pile choice) and untrained-policy seed."""
     untrained_hidden_sizes: tuple[int, ...] | None = None
     """Hidden sizes of untrained policies (None: the paper's)."""
+    refetches: int = 2
+    """With a retrieve stage in the chain: the most other blocks of the same type fetched, one after another, when
+    the retrieve ends without setting the target down on the staging area (``evaluation/refetch.py``); 0: the
+    first block only."""
 
 
 @dataclasses.dataclass
@@ -126,6 +133,8 @@ class Outcome:
     """Why the simulation failed (a failed episode, as the envs truncate one); empty if it did not."""
     fell: bool = False
     """The target object fell off the table (below ``FELL_BELOW``), which ended the episode, failed."""
+    refetches: int = 0
+    """Other blocks of the type fetched after the retrieve failed on the first (``RunConfig.refetches``)."""
 
 
 class ChainRunner:
@@ -142,6 +151,7 @@ class ChainRunner:
         self.config = config
         try:
             self.tasks = list(LoadChain(config.chain or config.family).stages)
+            self._watch = RetrieveWatch(self.tasks, config.refetches)
         except ValueError as error:
             raise ChainRunError(str(error)) from error
         self.scenario = LoadScenario(SCENARIOS[config.family], scenario_text=f"{{random_seed: {config.seed}}}")
@@ -275,6 +285,7 @@ class ChainRunner:
         SetChainTarget(self.controller, self.context, int(body.index()), goal=self.goal,
                        approach_offset=approach_offset, rest_height=rest_height)
         self.simulator.Initialize()  # Restarts the chain at stage 0 (switcher, policies, router, wrist IK).
+        self._watch.restart()
         RefreshSampledOutputs(self.plant, self.plant_context)  # Motor torques and contacts of the start state.
         self._start_time = self.context.get_time()
 
@@ -283,7 +294,10 @@ class ChainRunner:
         down) with goal pose ``goal`` ([xyz, wxyz]); blocks far from it stay frozen. Returns the block's name."""
         if name and not name.startswith(f"block_{block_type}_"):
             raise ChainRunError(f"block {name!r} is not of type {block_type}; name a block_{block_type}_<k>")
-        name = name or self.pick_block(block_type)
+        self._watch.start_object()
+        return self._fetch(block_type, goal, reset_robot, name or self.pick_block(block_type))
+
+    def _fetch(self, block_type: int, goal: np.ndarray, reset_robot: bool, name: str) -> str:
         self._used.add(name)
         frozen = self.objects.frozen_mask(self.context)
         p = self.objects.positions(self.context)[:, 4:]
@@ -294,6 +308,29 @@ class ChainRunner:
         self.objects.set_frozen(self.context, frozen & ~wake)
         self._start(name, goal, reset_robot)
         return name
+
+    def refetch(self) -> bool:
+        """Fetches the next block of the target's type (``evaluation/refetch.py``), the episode's clock running on;
+        False if none is left."""
+        block_type = block_type_of(self.target)
+        try:
+            name = self.pick_block(block_type)
+        except ChainRunError:
+            return False
+        clock = self._start_time
+        self._fetch(block_type, self.goal, False, name)
+        self._start_time, self._watch.used = clock, self._watch.used + 1
+        return True
+
+    @property
+    def refetches(self) -> int:
+        """Blocks fetched after the first in the current object's episode (:meth:`refetch`)."""
+        return self._watch.used
+
+    def target_staged(self) -> bool:
+        """Whether the target block rests on the staging area out of the hand, as the retrieve leaves it."""
+        return block_staged(self.object_pose(), block_type_of(self.target)) and \
+            not self.objects.touches_robot(self.plant_context, self.target)
 
     def restart(self) -> None:
         """Restarts the chain (stage 0, the approach first) on the current target and goal, the scene as it is now
@@ -391,6 +428,8 @@ class ChainRunner:
             self.objects.update(self.context)
             if self.object_pose().translation()[2] < FELL_BELOW:
                 return dataclasses.replace(self._outcome(False, self.errors()), fell=True)
+            if self._watch.due(int(self.chain_output("active_stage")[0]), self.target_staged):
+                self.refetch()
             if on_tick is not None and on_tick(self) is False:
                 break
             if stop_on_success and self.is_success():
@@ -409,7 +448,7 @@ class ChainRunner:
         return Outcome(success=success, time=self.context.get_time() - self._start_time,
                        last_stage=int(self.chain_output("active_stage")[0]),
                        switches=int(self.chain_output("switches_used")[0]), position_error=errors[0],
-                       rotation_error=errors[1], simulator_error=simulator_error)
+                       rotation_error=errors[1], simulator_error=simulator_error, refetches=self._watch.used)
 
     def episode_limit(self) -> float:
         """A time limit covering every stage's budget once per allowed switch, plus ``APPROACH_TIMEOUT`` per

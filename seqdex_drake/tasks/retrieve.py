@@ -24,7 +24,7 @@ from seqdex_drake.scene.piles import LoadPiles
 from seqdex_drake.tasks.base import ResetError, Task, TaskConfig
 from seqdex_drake.tasks.blocks_common import STAGING_HIGH, STAGING_LOW, retrieve_order
 from seqdex_drake.tasks.rewards import RewardWeights, penalties
-from seqdex_drake.tasks.scripted.block_retrieve_script import TABLE_Z, block_geometry, on_staging_area
+from seqdex_drake.tasks.scripted.block_retrieve_script import TABLE_Z, block_extent, block_geometry, on_staging_area
 from seqdex_drake.tasks.search import block_type_of
 
 #: A block set down counts as resting on the table while its lowest point is within this of the table top (m).
@@ -37,6 +37,15 @@ def default_config() -> TaskConfig:
     return TaskConfig(name="retrieve", scenario="building_blocks/search", episode_length=800, ema=1.0,
                       hand_actions=False, residual="block_retrieve_script",
                       reward=RewardWeights(progress=1.0, fingertip=0.0, action=-0.001, torque=-0.003))
+
+
+def block_staged(X_WB, block_type: int) -> bool:
+    """Whether a block of ``block_type`` at pose ``X_WB`` (a RigidTransform) rests on the staging area, as the
+    retrieve leaves it (3 cm of slack; its lowest point within ``RESTING_GAP`` of the table). The retrieve's
+    success is this and the block out of the hand's touch."""
+    centre, bottom = block_extent(X_WB.translation(), X_WB.rotation().matrix(),
+                                  float(BLOCK_SPECS[block_type].footprint[0]))
+    return bool(on_staging_area(centre) and bottom < TABLE_Z + RESTING_GAP)
 
 
 def start_retrieve(env, q_pile: np.ndarray, block_type: int) -> str:
@@ -78,6 +87,5 @@ class RetrieveTask(Task):
                 **penalties(self.config.reward, action, env.hand_torque())}
 
     def is_success(self, env) -> bool:
-        centre, bottom = block_geometry(env.observation_values(), self._length(env))
-        return bool(on_staging_area(centre) and bottom < TABLE_Z + RESTING_GAP
+        return bool(block_staged(env.object_pose(), block_type_of(env.target_object))
                     and not env.objects.touches_robot(env.plant_context, env.target_object))

@@ -61,8 +61,12 @@ def block_geometry(observation, length: float) -> tuple[np.ndarray, float]:
     """The observed block's geometric centre (world) and its lowest point's height [m], for a block ``length`` m
     long (its origin is the middle of its bottom face; the centre is ``TOTAL_HEIGHT / 2`` up its z axis)."""
     o = np.asarray(observation, dtype=float)
-    R_WB = rotation_matrix(o[OBJECT_POSE][3:7])
-    centre = o[OBJECT_POSE][:3] + R_WB[:, 2] * (TOTAL_HEIGHT / 2)
+    return block_extent(o[OBJECT_POSE][:3], rotation_matrix(o[OBJECT_POSE][3:7]), length)
+
+
+def block_extent(p_WB: np.ndarray, R_WB: np.ndarray, length: float) -> tuple[np.ndarray, float]:
+    """:func:`block_geometry` of a block at pose (``p_WB``, ``R_WB``, a 3x3 rotation matrix)."""
+    centre = np.asarray(p_WB, dtype=float) + R_WB[:, 2] * (TOTAL_HEIGHT / 2)
     half_extent_z = np.abs(R_WB[2]) @ [length / 2, BLOCK_WIDTH / 2, TOTAL_HEIGHT / 2]
     return centre, float(centre[2] - half_extent_z)
 
