@@ -47,6 +47,7 @@ from seqdex_drake.evaluation.chain_settings import (
 )
 from seqdex_drake.evaluation.display import ChainStatusDisplay
 from seqdex_drake.evaluation.refetch import RetrieveWatch
+from seqdex_drake.evaluation.run_types import ChainRunError, Outcome, RunConfig
 from seqdex_drake.harness import ResolvePackageUrl
 from seqdex_drake.modeling.blocks import BLOCK_SPECS
 from seqdex_drake.modeling.tools import TOOL_SPECS
@@ -85,56 +86,7 @@ DIVERGED = 1e3
 #: families, and nothing lies below it: a tool the hand knocks off falls for ever, and was once stopped as a
 #: diverged simulation 14 s later). Nothing in the chain can reach it there, so the episode ends, failed.
 FELL_BELOW = 0.3
-
-
-class ChainRunError(ValueError):
-    """A chain run that cannot start (bad checkpoint, unknown object, ...); the message says what to fix."""
-
-
-@dataclasses.dataclass
-class RunConfig:
-    """What :class:`ChainRunner` builds."""
-
-    family: str = "building_blocks"
-    """``building_blocks`` or ``tool_positioning``."""
-    chain: str = ""
-    """The chain to run (``diagrams/chains.yaml``); "": the family's own. E.g. ``building_blocks_policies``, the
-    Building Blocks chain without the scripted retrieve, as the experiments that measured it ran."""
-    run_dir: str | None = None
-    """Chain run directory (``stages/<task>/best.pt|last.pt``, ``feasibility/<task>.pt``); None: all untrained."""
-    max_switches: int = 3
-    """Most feasibility switches per object (paper: 3 in simulation)."""
-    stage_steps: tuple[int, ...] | None = None
-    """Per-stage step budgets; None: each task's episode length."""
-    history: int | None = None
-    """Use the history-ablation F files ``feasibility/<task>_h<H>.pt`` instead of ``<task>.pt``."""
-    seed: int = 0
-    """Scenario seed (pile choice) and untrained-policy seed."""
-    untrained_hidden_sizes: tuple[int, ...] | None = None
-    """Hidden sizes of untrained policies (None: the paper's)."""
-    refetches: int = 2
-    """With a retrieve stage in the chain: the most other blocks of the same type fetched, one after another, when
-    the retrieve ends without setting the target down on the staging area (``evaluation/refetch.py``); 0: the
-    first block only."""
-
-
-@dataclasses.dataclass
-class Outcome:
-    """The result of one object's episode."""
-
-    success: bool
-    time: float
-    """Simulated seconds from the start of the episode."""
-    last_stage: int
-    switches: int
-    position_error: float
-    rotation_error: float
-    simulator_error: str = ""
-    """Why the simulation failed (a failed episode, as the envs truncate one); empty if it did not."""
-    fell: bool = False
-    """The target object fell off the table (below ``FELL_BELOW``), which ended the episode, failed."""
-    refetches: int = 0
-    """Other blocks of the type fetched after the retrieve failed on the first (``RunConfig.refetches``)."""
+__all__ = ["ChainRunError", "ChainRunner", "Outcome", "RunConfig"]
 
 
 class ChainRunner:
