@@ -11,10 +11,13 @@ physical test (``ChainRunner.is_success``: within 2 cm and 0.2 rad of its goal, 
     results/building_blocks/main_command_manual.json
     python experiments/main_command_seeds.py --test     # one seed, the first block cut to 0.5 s, for CI
 
-Writes JSON: per block the seed, its index in the manual, type, the block fetched, whether it was placed, its
-errors, simulated time and switches, the funnel (on the staging area when Orient first starts, upright when Grasp
-first starts, lifted when Insert first starts); and the placed counts per manual step. About 4 min per block on a
-core.
+When the retrieve cannot take a block out of the pile, the chain fetches another of its type, at most
+``--refetches`` times (``evaluation/refetch.py``; 0 measures the first block alone).
+
+Writes JSON: per block the seed, its index in the manual, type, the block fetched first and last, the refetches,
+whether it was placed, its errors, simulated time and switches, the funnel of the last block fetched (on the
+staging area when Orient first starts, upright when Grasp first starts, lifted when Insert first starts); and the
+placed counts per manual step. About 4 min per block on a core.
 """
 
 import argparse
@@ -89,12 +92,12 @@ class Funnel:
 
 def run_seed(job: tuple) -> list[dict]:
     """The manual's first ``blocks`` blocks from ``seed`` (a fresh chain, as the main command builds it)."""
-    seed, checkpoints, manual, blocks, max_switches, time_limit = job
+    seed, checkpoints, manual, blocks, max_switches, refetches, time_limit = job
     from seqdex_drake.evaluation.runner import ChainRunner, RunConfig
     from seqdex_drake.manual import LoadManual, goal_vector
 
     runner = ChainRunner(RunConfig(family="building_blocks", run_dir=checkpoints, max_switches=max_switches,
-                                   seed=seed))
+                                   refetches=refetches, seed=seed))
     rows = []
     for index, step in enumerate(LoadManual(manual).steps[:blocks]):
         start = time.perf_counter()
@@ -118,6 +121,9 @@ def main(argv=None) -> int:
     parser.add_argument("--manual", default="small_wall", help="assembly manual (default: small_wall)")
     parser.add_argument("--checkpoints", default=str(SHIPPED), help="default: the shipped checkpoints")
     parser.add_argument("--max-switches", type=int, default=3, help="feasibility switches per block (default 3)")
+    parser.add_argument("--refetches", type=int, default=2,
+                        help="other blocks of the type fetched when the retrieve fails on one (default 2, the "
+                             "main command's)")
     parser.add_argument("--workers", type=int, default=1, help="processes, one seed each at a time (default 1)")
     parser.add_argument("--out", help="write the results to this JSON file")
     parser.add_argument("--test", action="store_true", help="seed 0, the first block cut to 0.5 s, for CI")
@@ -136,6 +142,8 @@ def main(argv=None) -> int:
             raise InputError(f"--workers must be >= 1, got {args.workers}")
         if args.max_switches < 0:
             raise InputError(f"--max-switches must be >= 0, got {args.max_switches}")
+        if args.refetches < 0:
+            raise InputError(f"--refetches must be >= 0, got {args.refetches}")
         if not (Path(args.checkpoints) / "manifest.json").is_file():
             raise InputError(f"--checkpoints {args.checkpoints} has no manifest.json (not a shipped checkpoint folder)")
         if args.out:
@@ -147,7 +155,7 @@ def main(argv=None) -> int:
         print(f"main_command_seeds: error: --manual {args.manual}: cannot read it as a YAML assembly manual",
               file=sys.stderr)
         return 2
-    jobs = [(seed, args.checkpoints, args.manual, blocks, args.max_switches, 0.5 if args.test else None)
+    jobs = [(seed, args.checkpoints, args.manual, blocks, args.max_switches, args.refetches, 0.5 if args.test else None)
             for seed in seeds]
     rows = []
     with get_context("spawn").Pool(min(args.workers, len(jobs))) as pool:
@@ -164,7 +172,8 @@ def main(argv=None) -> int:
           f"{seeds_placing}")
     if args.out:
         result = {"checkpoints": args.checkpoints, "manual": args.manual, "max_switches": args.max_switches,
-                  "seeds": seeds, "blocks": blocks, "placed_per_step": placed, "seeds_placing": seeds_placing,
+                  "refetches": args.refetches, "seeds": seeds, "blocks": blocks, "placed_per_step": placed,
+                  "seeds_placing": seeds_placing,
                   "per_block": rows}
         atomic_write(args.out, lambda file: file.write((json.dumps(result, indent=2) + "\n").encode()))
         print(f"main_command_seeds: wrote {args.out}")
