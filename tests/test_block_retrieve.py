@@ -207,7 +207,8 @@ def test_retrieve_chain_short_run_writes_its_episodes_alike_whatever_ran_before_
 def test_a_retrieve_that_ends_without_the_block_staged_fetches_the_next_block_of_its_type_on_the_same_clock():
     """``evaluation/refetch.py`` in the whole chain: a 3-tick retrieve budget cannot take the block out, so the
     runner fetches the next block of the type (the chain restarts on it, the episode's clock running on), at most
-    ``refetches`` times; the watch never fires without a retrieve stage, and a negative cap is refused."""
+    ``refetches`` times; the watch never fires without a retrieve stage, and a negative cap is refused. The target
+    block counts as lifted (no switch back to a stage before Insert) only when it is off the table in hand."""
     from seqdex_drake.evaluation.refetch import RetrieveWatch
     from seqdex_drake.evaluation.runner import ChainRunError, ChainRunner, RunConfig
     from seqdex_drake.manual import LoadManual, goal_vector
@@ -228,7 +229,20 @@ def test_a_retrieve_that_ends_without_the_block_staged_fetches_the_next_block_of
     assert outcome.refetches == 1 == runner.refetches and len(targets) == 2 and targets[0] == first
     assert targets[1] != first and targets[1].startswith(f"block_{step.block_type}_")
     assert times[1] > 1.0 and outcome.time >= 6.0  # One clock: the refetch did not restart the episode's time.
-    assert runner.start_block(step.block_type, goal_vector(step)) not in targets and runner.refetches == 0
+    third = runner.start_block(step.block_type, goal_vector(step))
+    assert third not in targets and runner.refetches == 0
+    # Only Insert may follow a block lifted in hand (FREE_OBJECT_STAGES): the block on the table is free, 0.5 m up
+    # (as Grasp lifts it) it is held.
+    from pydrake.math import RigidTransform
+
+    approach = runner.controller.GetSubsystemByName("approach_target")
+
+    def lifted() -> bool:
+        return bool(approach.GetOutputPort("object_lifted").Eval(approach.GetMyContextFromRoot(runner.context))[0])
+
+    for z, held in ((0.6, False), (1.1, True)):
+        runner.objects.set_pose(runner.context, third, RigidTransform([-0.025, -0.30, z]), frozen=False)
+        assert lifted() == held
     assert RetrieveWatch(["search", "orient"], 2).stage is None
     assert not RetrieveWatch(["search", "orient"], 2).due(1, lambda: False)
     with pytest.raises(ChainRunError, match="refetches must be >= 0"):

@@ -21,7 +21,14 @@ APPROACH_STAGES = {"building_blocks": ("retrieve", "orient", "grasp")}
 #: Stages a feasibility switch selects only while the target object is not lifted (``ChainParams.free_object_stages``):
 #: tool Grasp starts from the tool on the table, and its policy cannot put down a tool it holds, so F^reorient
 #: scoring a held tool below 1 keeps tool Reorient (the sequential rule), while a dropped tool goes back to it.
-FREE_OBJECT_STAGES = {"tool_positioning": ("tool_grasp",)}
+#: Building Blocks: every stage before Insert starts from a block at rest (in the pile or on the table); with the
+#: block lifted in Grasp's jaws, only Insert can go on from there (the others, restarted, would drop it).
+FREE_OBJECT_STAGES = {"tool_positioning": ("tool_grasp",),
+                      "building_blocks": ("search", "retrieve", "orient", "grasp")}
+#: A block counts as lifted while its centre of mass is more than ``HELD_LIFT`` (7.5 cm) over this height above the
+#: table, 10.5 cm in all (``ChainRunner.start_block``): a block resting on the table has it at most 6 cm up (a 1x4
+#: on an end); Grasp lifts blocks about 0.5 m.
+BLOCK_REST_HEIGHT = 0.03
 #: Stages entered with the approach carrying the held block to this height (m) above its goal
 #: (``ChainParams.carry_stages``): Insert's script carries it 3 cm above its goal before it lowers it, and the way
 #: there from Grasp's lift (about 1.1 m high, anywhere over the box) was more than its 125 steps at the wrist's

@@ -36,6 +36,7 @@ from seqdex_drake.controller.switcher import SwitcherParams
 from seqdex_drake.evaluation.chain_settings import (
     APPROACH_STAGES,
     APPROACH_TIMEOUT,
+    BLOCK_REST_HEIGHT,
     BLOCK_TRAVEL_HEIGHT,
     CARRY_GOAL_SYMMETRY,
     CARRY_STAGES,
@@ -258,7 +259,7 @@ class ChainRunner:
         wake = near & in_box
         wake[self.objects.index(name)] = True  # The target itself, also outside the box (set down by a retrieve).
         self.objects.set_frozen(self.context, frozen & ~wake)
-        self._start(name, goal, reset_robot)
+        self._start(name, goal, reset_robot, rest_height=TABLE_TOP + BLOCK_REST_HEIGHT)
         return name
 
     def refetch(self) -> bool:
