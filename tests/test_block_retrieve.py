@@ -204,7 +204,7 @@ def test_retrieve_chain_short_run_writes_its_episodes_alike_whatever_ran_before_
     assert bad.returncode == 2 and "--episodes must be A-B" in bad.stderr and "Traceback" not in bad.stderr
 
 
-def test_a_retrieve_that_ends_without_the_block_staged_fetches_the_next_block_of_its_type_on_the_same_clock():
+def test_a_retrieve_that_leaves_its_block_in_the_pile_fetches_the_next_block_of_its_type_on_the_same_clock():
     """``evaluation/refetch.py`` in the whole chain: a 3-tick retrieve budget cannot take the block out, so the
     runner fetches the next block of the type (the chain restarts on it, the episode's clock running on), at most
     ``refetches`` times; the watch never fires without a retrieve stage, and a negative cap is refused. The target
@@ -244,6 +244,9 @@ def test_a_retrieve_that_ends_without_the_block_staged_fetches_the_next_block_of
         runner.objects.set_pose(runner.context, third, RigidTransform([-0.025, -0.30, z]), frozen=False)
         assert lifted() == held
     assert RetrieveWatch(["search", "orient"], 2).stage is None
-    assert not RetrieveWatch(["search", "orient"], 2).due(1, lambda: False)
+    assert not RetrieveWatch(["search", "orient"], 2).due(1, lambda: True)
+    watch = RetrieveWatch(["search", "retrieve", "orient"], 2)
+    assert not watch.due(1, lambda: True) and not watch.due(2, lambda: False)  # Left it with the block out: kept.
+    assert not watch.due(1, lambda: True) and watch.due(2, lambda: True)  # Left it with the block in the box.
     with pytest.raises(ChainRunError, match="refetches must be >= 0"):
         ChainRunner(RunConfig(family="building_blocks", refetches=-1))

@@ -5,9 +5,13 @@ to take out (``ChainRunner.pick_block``), but some cannot be taken out: the retr
 their neighbours on the box floor (``tasks/scripted/block_retrieve_script.py``). Restarting the chain on the same
 block (the switcher's restart from Search) meets the same neighbours again. So, as a person would reach for the
 next identical block, the runner fetches the next-easiest block of the type once the retrieve stage has ended
-without setting its target down on the staging area (:func:`~seqdex_drake.tasks.retrieve.block_staged`): it gave
-up, or ran out of its budget. The chain restarts on the new block (``ChainRunner.start_block``); the episode's clock
-runs on, so the refetches share the object's time limit.
+with its target still in the box (``ChainRunner.target_in_pile``): it gave up, or ran out of its budget before the
+block was out. A block that is out of the box is kept, wherever it lies on the table: Orient and Grasp act there,
+and the switcher's restarts (Search, then the retrieve again) may move a block that was already set down; fetching
+another then threw away a block stood up or about to be (2 of 32 held-out seeds placed before, not after, in the
+first measurement of this rule, which also refetched blocks lying outside the staging area). The chain restarts on
+the new block (``ChainRunner.start_block``); the episode's clock runs on, so the refetches share the object's time
+limit.
 
 :class:`RetrieveWatch` is the test, read once per control tick by ``ChainRunner.run``.
 """
@@ -16,7 +20,7 @@ from __future__ import annotations
 
 
 class RetrieveWatch:
-    """Says when the retrieve stage has just ended with its target not staged, and counts the refetches.
+    """Says when the retrieve stage has just ended with its target still in the pile; counts the refetches.
 
     Args:
         tasks: the chain's stages; without a ``retrieve`` stage the watch never fires.
@@ -40,9 +44,9 @@ class RetrieveWatch:
         """The chain restarted at stage 0 (a refetch or a restart on the same target)."""
         self._previous = -1
 
-    def due(self, active_stage: int, staged) -> bool:
-        """Whether to fetch another block now: the chain left the retrieve stage at this tick, ``staged()`` (the
-        target resting on the staging area, out of the hand) is False, and a refetch is left."""
+    def due(self, active_stage: int, in_pile) -> bool:
+        """Whether to fetch another block now: the chain left the retrieve stage at this tick, ``in_pile()`` (the
+        target still in the box) is True, and a refetch is left."""
         left = self._previous == self.stage and active_stage != self.stage
         self._previous = int(active_stage)
-        return self.stage is not None and left and self.used < self.limit and not staged()
+        return self.stage is not None and left and self.used < self.limit and bool(in_pile())

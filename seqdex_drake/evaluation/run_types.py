@@ -31,8 +31,7 @@ class RunConfig:
     """Hidden sizes of untrained policies (None: the paper's)."""
     refetches: int = 2
     """With a retrieve stage in the chain: the most other blocks of the same type fetched, one after another, when
-    the retrieve ends without setting the target down on the staging area (``evaluation/refetch.py``); 0: the
-    first block only."""
+    the retrieve ends with the target still in the pile (``evaluation/refetch.py``); 0: the first block only."""
 
 
 @dataclasses.dataclass
@@ -51,4 +50,4 @@ class Outcome:
     fell: bool = False
     """The target object fell off the table (below ``FELL_BELOW``), which ended the episode, failed."""
     refetches: int = 0
-    """Other blocks of the type fetched after the retrieve failed on the first (``RunConfig.refetches``)."""
+    """Other blocks of the type fetched after the retrieve left one in the pile (``RunConfig.refetches``)."""

@@ -62,8 +62,8 @@ from seqdex_drake.station import MakeControllerPlant, MakeStation, RefreshSample
 from seqdex_drake.tasks.blocks_common import accessibility_order, retrieve_order
 from seqdex_drake.tasks.insert import YAW_FLIP
 from seqdex_drake.tasks.registry import default_config
-from seqdex_drake.tasks.retrieve import block_staged
 from seqdex_drake.tasks.rewards import quaternion_angle
+from seqdex_drake.tasks.scripted.block_retrieve_script import block_extent, in_box
 from seqdex_drake.tasks.search import block_type_of
 from seqdex_drake.tasks.tools_common import HELD_LIFT, TABLE_TOP, TOOL_XY
 
@@ -280,10 +280,11 @@ class ChainRunner:
         """Blocks fetched after the first in the current object's episode (:meth:`refetch`)."""
         return self._watch.used
 
-    def target_staged(self) -> bool:
-        """Whether the target block rests on the staging area out of the hand, as the retrieve leaves it."""
-        return block_staged(self.object_pose(), block_type_of(self.target)) and \
-            not self.objects.touches_robot(self.plant_context, self.target)
+    def target_in_pile(self) -> bool:
+        """Whether the target block's centre is still over the box's floor: not taken out of the pile."""
+        X_WB = self.object_pose()
+        length = float(BLOCK_SPECS[block_type_of(self.target)].footprint[0])
+        return in_box(block_extent(X_WB.translation(), X_WB.rotation().matrix(), length)[0])
 
     def restart(self) -> None:
         """Restarts the chain (stage 0, the approach first) on the current target and goal, the scene as it is now
@@ -381,7 +382,7 @@ class ChainRunner:
             self.objects.update(self.context)
             if self.object_pose().translation()[2] < FELL_BELOW:
                 return dataclasses.replace(self._outcome(False, self.errors()), fell=True)
-            if self._watch.due(int(self.chain_output("active_stage")[0]), self.target_staged):
+            if self._watch.due(int(self.chain_output("active_stage")[0]), self.target_in_pile):
                 self.refetch()
             if on_tick is not None and on_tick(self) is False:
                 break
