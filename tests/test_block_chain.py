@@ -16,7 +16,7 @@ def test_blocks_are_fetched_where_the_hand_fits_and_every_stage_after_search_sta
     # Seed 1: a block whose hover point Search leaves the hand away from (at seed 0 the hand is already over it
     # when Orient starts, and no approach is needed).
     runner = ChainRunner(RunConfig(family="building_blocks", max_switches=0, stage_steps=(3,) * 5,
-                                   untrained_hidden_sizes=(16,), seed=1))
+                                   untrained_hidden_sizes=(16,), seed=1, refetches=0))
     step = LoadManual("small_wall").steps[0]
     name = runner.start_block(step.block_type, goal_vector(step))
     low, high = reachable_region()
@@ -49,7 +49,7 @@ def test_the_shipped_chain_lifts_a_block_and_carries_it_over_its_goal_turned_to_
 
     shipped = Path(__file__).resolve().parents[1] / "checkpoints" / "building_blocks"
     runner = ChainRunner(RunConfig(family="building_blocks", run_dir=str(shipped), max_switches=0,
-                                   stage_steps=(1, 1, 1, 150, 125)))
+                                   stage_steps=(1, 1, 1, 150, 125), refetches=0))  # The block stands in the box.
     assert runner.untrained == []
     step = LoadManual("small_wall").steps[0]
     name = runner.start_block(step.block_type, goal_vector(step))
@@ -91,7 +91,7 @@ def test_a_block_counts_as_placed_only_released_and_at_rest():
     # Seed 1: a block whose hover point Search leaves the hand away from (at seed 0 the hand is already over it
     # when Orient starts, and no approach is needed).
     runner = ChainRunner(RunConfig(family="building_blocks", max_switches=0, stage_steps=(3,) * 5,
-                                   untrained_hidden_sizes=(16,), seed=1))
+                                   untrained_hidden_sizes=(16,), seed=1, refetches=0))
     step = LoadManual("small_wall").steps[0]
     name = runner.start_block(step.block_type, goal_vector(step))
     body = runner.objects.bodies[runner.objects.index(name)]
@@ -117,7 +117,7 @@ def test_a_block_episode_ends_a_settling_second_after_the_chain_is_done():
     from seqdex_drake.evaluation.chain_settings import DONE_SETTLE
 
     runner = ChainRunner(RunConfig(family="building_blocks", max_switches=0, stage_steps=(3,) * 5,
-                                   untrained_hidden_sizes=(16,), seed=1))
+                                   untrained_hidden_sizes=(16,), seed=1, refetches=0))
     step = LoadManual("small_wall").steps[0]
     runner.start_block(step.block_type, goal_vector(step))
     limit = runner.episode_limit()

@@ -136,7 +136,7 @@ class ChainRunner:
                              approach_stages=self._in_chain(APPROACH_STAGES),
                              approach_timeout=APPROACH_TIMEOUT if config.family in TIMEOUT_FAMILIES else np.inf,
                              carry_stages=CARRY_STAGES.get(config.family, ()),
-                             free_object_stages=FREE_OBJECT_STAGES.get(config.family, ()),
+                             free_object_stages=self._in_chain(FREE_OBJECT_STAGES),
                              carry_goal_symmetry=CARRY_GOAL_SYMMETRY.get(config.family, 0.0))
         params.handover_angle, params.handover_speed = HANDOVER_SETTLE.get(config.family, (np.inf, np.inf))
         if config.untrained_hidden_sizes is not None:
