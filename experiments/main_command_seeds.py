@@ -121,9 +121,9 @@ def main(argv=None) -> int:
     parser.add_argument("--manual", default="small_wall", help="assembly manual (default: small_wall)")
     parser.add_argument("--checkpoints", default=str(SHIPPED), help="default: the shipped checkpoints")
     parser.add_argument("--max-switches", type=int, default=3, help="feasibility switches per block (default 3)")
-    parser.add_argument("--refetches", type=int, default=2,
-                        help="other blocks of the type fetched when the retrieve fails on one (default 2, the "
-                             "main command's)")
+    parser.add_argument("--refetches", type=int, default=0,
+                        help="other blocks of the type fetched when the retrieve leaves one in the pile (default 0, "
+                             "the main command's)")
     parser.add_argument("--workers", type=int, default=1, help="processes, one seed each at a time (default 1)")
     parser.add_argument("--out", help="write the results to this JSON file")
     parser.add_argument("--test", action="store_true", help="seed 0, the first block cut to 0.5 s, for CI")

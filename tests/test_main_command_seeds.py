@@ -23,7 +23,7 @@ def test_short_run_writes_the_first_blocks_record(tmp_path):
     assert result.returncode == 0, result.stderr[-2000:]
     record = json.loads(out.read_text())
     assert record["seeds"] == [0] and record["blocks"] == 1 and record["placed_per_step"] == [0]
-    assert record["refetches"] == 2
+    assert record["refetches"] == 0
     (row,) = record["per_block"]
     assert row["seed"] == 0 and row["step"] == 0 and row["block_type"] == 5 and row["block"].startswith("block_5_")
     # Cut to 0.5 s: Search has barely started, the block is still in the box, far from its goal on the baseplate.

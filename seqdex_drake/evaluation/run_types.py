@@ -29,9 +29,10 @@ class RunConfig:
     """Scenario seed (pile choice) and untrained-policy seed."""
     untrained_hidden_sizes: tuple[int, ...] | None = None
     """Hidden sizes of untrained policies (None: the paper's)."""
-    refetches: int = 2
+    refetches: int = 0
     """With a retrieve stage in the chain: the most other blocks of the same type fetched, one after another, when
-    the retrieve ends with the target still in the pile (``evaluation/refetch.py``); 0: the first block only."""
+    the retrieve ends with the target still in the pile (``evaluation/refetch.py``); 0 (the default, as the main
+    command's recorded figures were measured): the first block only."""
 
 
 @dataclasses.dataclass
