@@ -92,12 +92,12 @@ class Funnel:
 
 def run_seed(job: tuple) -> list[dict]:
     """The manual's first ``blocks`` blocks from ``seed`` (a fresh chain, as the main command builds it)."""
-    seed, checkpoints, manual, blocks, max_switches, refetches, time_limit = job
+    seed, checkpoints, manual, blocks, max_switches, refetches, trigger, time_limit = job
     from seqdex_drake.evaluation.runner import ChainRunner, RunConfig
     from seqdex_drake.manual import LoadManual, goal_vector
 
     runner = ChainRunner(RunConfig(family="building_blocks", run_dir=checkpoints, max_switches=max_switches,
-                                   refetches=refetches, seed=seed))
+                                   refetches=refetches, trigger=trigger, seed=seed))
     rows = []
     for index, step in enumerate(LoadManual(manual).steps[:blocks]):
         start = time.perf_counter()
@@ -124,11 +124,15 @@ def main(argv=None) -> int:
     parser.add_argument("--refetches", type=int, default=0,
                         help="other blocks of the type fetched when the retrieve leaves one in the pile (default 0, "
                              "the main command's)")
+    parser.add_argument("--trigger", default="", help="the switcher's trigger: next, any_later or decision "
+                        "(``SwitcherParams.trigger``; default: the main command's)")
     parser.add_argument("--workers", type=int, default=1, help="processes, one seed each at a time (default 1)")
     parser.add_argument("--out", help="write the results to this JSON file")
     parser.add_argument("--test", action="store_true", help="seed 0, the first block cut to 0.5 s, for CI")
     args = parser.parse_args(argv)
     from seqdex_drake.atomic import atomic_write
+    from seqdex_drake.controller.switcher import TRIGGERS
+    from seqdex_drake.evaluation.chain_settings import SWITCH_TRIGGER
     from seqdex_drake.manual import LoadManual, ManualError
     from seqdex_drake.user_input import InputError, check_creatable
 
@@ -146,6 +150,8 @@ def main(argv=None) -> int:
             raise InputError(f"--refetches must be >= 0, got {args.refetches}")
         if not (Path(args.checkpoints) / "manifest.json").is_file():
             raise InputError(f"--checkpoints {args.checkpoints} has no manifest.json (not a shipped checkpoint folder)")
+        if args.trigger not in ("", *TRIGGERS):
+            raise InputError(f"--trigger must be one of {', '.join(TRIGGERS)}, got '{args.trigger}'")
         if args.out:
             check_creatable(args.out, "--out")
     except (InputError, ManualError) as error:
@@ -155,7 +161,8 @@ def main(argv=None) -> int:
         print(f"main_command_seeds: error: --manual {args.manual}: cannot read it as a YAML assembly manual",
               file=sys.stderr)
         return 2
-    jobs = [(seed, args.checkpoints, args.manual, blocks, args.max_switches, args.refetches, 0.5 if args.test else None)
+    jobs = [(seed, args.checkpoints, args.manual, blocks, args.max_switches, args.refetches, args.trigger,
+             0.5 if args.test else None)
             for seed in seeds]
     rows = []
     with get_context("spawn").Pool(min(args.workers, len(jobs))) as pool:
@@ -172,8 +179,9 @@ def main(argv=None) -> int:
           f"{seeds_placing}")
     if args.out:
         result = {"checkpoints": args.checkpoints, "manual": args.manual, "max_switches": args.max_switches,
-                  "refetches": args.refetches, "seeds": seeds, "blocks": blocks, "placed_per_step": placed,
-                  "seeds_placing": seeds_placing,
+                  "refetches": args.refetches,
+                  "trigger": args.trigger or SWITCH_TRIGGER["building_blocks"], "seeds": seeds, "blocks": blocks,
+                  "placed_per_step": placed, "seeds_placing": seeds_placing,
                   "per_block": rows}
         atomic_write(args.out, lambda file: file.write((json.dumps(result, indent=2) + "\n").encode()))
         print(f"main_command_seeds: wrote {args.out}")

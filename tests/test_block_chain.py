@@ -132,6 +132,7 @@ def test_a_block_episode_ends_a_settling_second_after_the_chain_is_done():
 def test_the_learned_stages_run_as_their_own_chain_and_fetch_the_block_easiest_to_handle_in_place():
     """``RunConfig.chain``: the Building Blocks chain without the scripted retrieve (as the experiments that measured
     it ran) has its four stages, approaches only into those it has, and picks by ``accessibility_order``."""
+    from seqdex_drake.evaluation.chain_settings import SWITCH_TRIGGER
     from seqdex_drake.evaluation.runner import ChainRunError
     from seqdex_drake.tasks.blocks_common import accessibility_order
 
@@ -144,3 +145,7 @@ def test_the_learned_stages_run_as_their_own_chain_and_fetch_the_block_easiest_t
     assert runner.pick_block(5) == runner.objects.names[blocks[accessibility_order(q[blocks], rows)[0]]]
     with pytest.raises(ChainRunError, match="no_such_chain"):
         ChainRunner(RunConfig(family="building_blocks", chain="no_such_chain"))
+    switcher = runner.controller.GetSubsystemByName("switcher")
+    assert switcher.params.trigger == SWITCH_TRIGGER["building_blocks"]  # The family's, as the main command's
+    with pytest.raises(ChainRunError, match="unknown switcher trigger 'often'; valid: next, any_later, decision"):
+        ChainRunner(RunConfig(family="building_blocks", chain="building_blocks_policies", trigger="often"))

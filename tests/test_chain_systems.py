@@ -291,6 +291,25 @@ def test_switcher_trigger_next_waits_for_the_budget_when_only_a_later_stage_is_f
         SwitcherRig(trigger="sometimes")
 
 
+def test_switcher_trigger_decision_never_cuts_a_stage_short():
+    """With ``trigger = "decision"`` no score is computed between decisions, so a feasible next stage waits for the
+    executing stage's end; there the walk back still retries, skips or recovers."""
+    rig = SwitcherRig(budgets=(4, 4, 4, 4), trigger="decision")
+    rig.set(3.0, 0.0, 0.0)  # c^1 > 1 from the first tick: "next" would switch at once
+    assert rig.run(3) == (0, 0)
+    assert np.isnan(rig.scores()).all()  # nothing computed yet
+    assert rig.run() == (1, 1)  # stage 0's budget end: the walk back selects stage 1, a feasibility switch
+    assert rig.scores()[1] == 3.0
+    rig.set(0.0, 0.0, 0.0)  # nothing feasible at stage 1's end: restart from stage 0 (a recovery)
+    assert rig.run(3) == (1, 1)
+    assert rig.run() == (0, 2)
+    rig.set(0.0, 2.0, 0.0)  # stage 2 feasible at stage 0's end: skip stage 1
+    assert rig.run(4) == (2, 3)
+    rig = SwitcherRig(budgets=(4, 4, 4, 4), trigger="next")
+    rig.set(3.0, 0.0, 0.0)
+    assert rig.run() == (1, 1)  # the paper's timing, for contrast
+
+
 def test_switcher_selects_a_free_object_stage_only_while_the_object_is_not_held():
     """Tool Grasp starts from the tool on the table: with the tool in hand a walk back to it does not switch (the
     sequential rule applies); once the tool is down (dropped), F sending the chain back to it does."""

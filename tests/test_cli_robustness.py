@@ -121,6 +121,7 @@ def test_task_config_refuses_values_no_episode_runs_with(field, value):
     (["--checkpoints", "{tmp}/afile", "--headless"], "afile is a file, not a directory"),
     (["--checkpoints", "{tmp}/nowhere", "--headless"], "nowhere does not exist"),
     (["--max-switches", "-1", "--headless"], "--max-switches must be >= 0"),
+    (["--trigger", "often", "--headless"], "invalid choice: 'often'"),
     (["--record", "{tmp}/replay.html", "--headless"], "--record needs meshcat"),
 ])
 def test_simulate_chain_refuses_bad_input_up_front(tmp_path, args, message):

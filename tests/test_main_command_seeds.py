@@ -23,7 +23,7 @@ def test_short_run_writes_the_first_blocks_record(tmp_path):
     assert result.returncode == 0, result.stderr[-2000:]
     record = json.loads(out.read_text())
     assert record["seeds"] == [0] and record["blocks"] == 1 and record["placed_per_step"] == [0]
-    assert record["refetches"] == 0
+    assert record["refetches"] == 0 and record["trigger"] == "next"
     (row,) = record["per_block"]
     assert row["seed"] == 0 and row["step"] == 0 and row["block_type"] == 5 and row["block"].startswith("block_5_")
     # Cut to 0.5 s: Search has barely started, the block is still in the box, far from its goal on the baseplate.
@@ -39,6 +39,7 @@ def test_short_run_writes_the_first_blocks_record(tmp_path):
     (["--blocks", "4"], "--blocks must be in 1 .. 3"),
     (["--workers", "0"], "--workers must be >= 1"),
     (["--refetches", "-1"], "--refetches must be >= 0"),
+    (["--trigger", "often"], "--trigger must be one of next, any_later, decision"),
     (["--checkpoints", "/nonexistent/run"], "has no manifest.json"),
     (["--manual", "/nonexistent/manual.yaml"], "not found"),
     (["--manual", "/bin/ls"], "cannot read it as a YAML assembly manual"),

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from seqdex_drake.chaining.chain import LoadChain
 from seqdex_drake.cli import CliError
+from seqdex_drake.controller.switcher import TRIGGERS
 from seqdex_drake.evaluation.experiments import EvalConfig, Evaluation, history_available, progress_bar, total_episodes
 from seqdex_drake.evaluation.parallel import EvaluationWorkerError
 from seqdex_drake.evaluation.runner import ChainRunError
@@ -53,6 +54,9 @@ def add_parser(commands) -> None:
     parser.add_argument("--chain", default="",
                         help="another chain of the family's stages (diagrams/chains.yaml), e.g. "
                              "building_blocks_policies (without the scripted retrieve); default: the family's own")
+    parser.add_argument("--trigger", choices=TRIGGERS, default="",
+                        help="when the switcher scores the next stages between decisions: next (c^{i+1} every "
+                             "tick, the paper's), any_later, or decision (only at a stage's end); default: the task's")
     parser.add_argument("--test", action="store_true", help="a tiny budget for smoke tests and CI")
 
 
@@ -84,7 +88,7 @@ def run(args) -> int:
         time_limit=TEST_SECONDS if args.test else None,
         ablation_objects=test_ablation if args.test else None,
         untrained_hidden_sizes=(64, 64) if args.test else None, resume=args.resume, objects=objects,
-        workers=args.workers, label=args.label, chain=args.chain)
+        workers=args.workers, label=args.label, chain=args.chain, trigger=args.trigger)
     available = 0 if args.skip_ablations else history_available(config)
     total = total_episodes(config, available, ablations=not args.skip_ablations)
     bar = progress_bar(total, f"evaluate {args.task}")

@@ -29,6 +29,7 @@ from pydrake.geometry import Meshcat, MeshcatParams
 from seqdex_drake.atomic import atomic_write
 from seqdex_drake.chaining.chain import LoadChain
 from seqdex_drake.cli import CliError
+from seqdex_drake.controller.switcher import TRIGGERS
 from seqdex_drake.evaluation.runner import ChainRunError, ChainRunner, RunConfig
 from seqdex_drake.manual import LoadManual, ManualError, goal_vector
 from seqdex_drake.scenario import ScenarioError
@@ -56,6 +57,9 @@ def add_parser(commands) -> None:
     parser.add_argument("--untrained", action="store_true", help="run untrained policies even where shipped")
     parser.add_argument("--seed", type=int, default=0, help="random seed (pile, tool yaw, untrained policies)")
     parser.add_argument("--max-switches", type=int, default=3, help="feasibility switches per object (default 3)")
+    parser.add_argument("--trigger", choices=TRIGGERS, default="",
+                        help="when the switcher scores the next stages between decisions: next (c^{i+1} every "
+                             "tick, the paper's), any_later, or decision (only at a stage's end); default: the task's")
     parser.add_argument("--duration", type=float, default=float("inf"),
                         help="stop after this many simulated seconds (default: when the manual is done)")
     parser.add_argument("--headless", action="store_true", help="no meshcat")
@@ -127,6 +131,7 @@ def run(args) -> int:
         meshcat.SetCameraPose([1.45, -0.25, 1.35], [0.15, -0.05, 0.62])
         print(f"meshcat: open {meshcat.web_url()} in a browser", flush=True)
     config = RunConfig(family=args.task, run_dir=args.checkpoints, max_switches=args.max_switches, seed=args.seed,
+                       trigger=args.trigger,
                        stage_steps=(TEST_STAGE_STEPS,) * len(LoadChain(args.task).stages) if args.test else None,
                        untrained_hidden_sizes=(64, 64) if args.test else None)
     print(f"building the {args.task} station and chain controller ...", flush=True)

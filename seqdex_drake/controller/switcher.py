@@ -8,7 +8,8 @@ Every control tick the switcher appends each needed observation to a history kep
 H observations per stage layout; shorter histories are left-padded by ``pad_history`` inside the model),
 computes the scores its trigger needs and advances the executing stage's step counter. As the paper describes
 it, only the next stage's score c^{i+1} is computed every tick (``SwitcherParams.trigger = "next"``); with
-``trigger = "any_later"`` every later stage's is. A *decision* happens when
+``trigger = "any_later"`` every later stage's is; with ``trigger = "decision"`` none is (the scores are computed
+only at the other decisions below, so a stage is never cut short by a score). A *decision* happens when
 
 - a computed later score exceeds 1 (the paper's switch timing: c^{i+1} > 1), or
 - the executing stage's step budget is used up, or the optional ``stage_success`` input is above 0.5, or the
@@ -51,6 +52,8 @@ from seqdex_drake.chaining.feasibility import pad_history, score, walk_back
 from seqdex_drake.controller.inference import FeasibilityBank, snapshot_feasibility
 
 _STAGE, _STEPS, _SWITCHES = 0, 1, 2
+#: ``SwitcherParams.trigger``'s values.
+TRIGGERS = ("next", "any_later", "decision")
 
 
 def feasibility_score(f, history: np.ndarray) -> float:
@@ -80,7 +83,9 @@ class SwitcherParams:
     trigger: str = "next"
     """Scores computed every tick between decisions: "next" (c^{i+1} only, the paper's switch timing) or
     "any_later" (every later stage's, so a later stage becoming feasible also triggers a decision; costs one F
-    per later stage per tick)."""
+    per later stage per tick) or "decision" (none: the walk back runs only at a stage's end -- its budget, success
+    or ``stage_done`` -- so no score hands over in the middle of a stage; switches then retry, recover or skip only
+    where a stage ends)."""
     inference: str = "numpy"
     """"numpy": evaluate torch F's from float32 numpy snapshots (fast at batch 1); "torch": the models themselves."""
     time_steps: tuple[int, ...] | None = None
@@ -139,8 +144,8 @@ class FeasibilitySwitcher(LeafSystem):
             raise ValueError(f"every stage step budget must be at least 1 tick, got {budgets}")
         if params.max_switches < 0:
             raise ValueError(f"max_switches must be >= 0, got {params.max_switches}")
-        if params.trigger not in ("next", "any_later"):
-            raise ValueError(f"trigger must be 'next' or 'any_later', got {params.trigger!r}")
+        if params.trigger not in TRIGGERS:
+            raise ValueError(f"trigger must be one of {', '.join(map(repr, TRIGGERS))}, got {params.trigger!r}")
         if params.inference not in ("numpy", "torch"):
             raise ValueError(f"inference must be 'numpy' or 'torch', got {params.inference!r}")
         self._budgets = np.asarray(budgets, dtype=int)
@@ -255,6 +260,8 @@ class FeasibilitySwitcher(LeafSystem):
             return list(range(1, self.num_stages))
         if self._params.trigger == "any_later":
             return list(range(stage + 1, self.num_stages))
+        if self._params.trigger == "decision":
+            return []
         return [stage + 1] if stage + 1 < self.num_stages else [stage]  # The last stage: its own F.
 
     def decide(self, stage: int, steps: int, switches: int, scores: np.ndarray,

@@ -21,7 +21,8 @@ def run_config(config, **overrides) -> RunConfig:
     the first seed's (pile, untrained policies) whichever seed runs."""
     settings = dict(family=config.family, run_dir=config.run_dir, max_switches=config.max_switches,
                     stage_steps=config.stage_steps, seed=config.seeds[0],
-                    untrained_hidden_sizes=config.untrained_hidden_sizes, chain=getattr(config, "chain", ""))
+                    untrained_hidden_sizes=config.untrained_hidden_sizes, chain=getattr(config, "chain", ""),
+                    trigger=getattr(config, "trigger", ""))
     settings.update(overrides)
     return RunConfig(**settings)
 

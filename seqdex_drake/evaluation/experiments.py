@@ -60,6 +60,8 @@ class EvalConfig:
     """Processes running the episodes (seeds round-robin over at most ``len(seeds)`` of them)."""
     chain: str = ""
     """The chain to run (``diagrams/chains.yaml``; ``RunConfig.chain``); "": the family's own."""
+    trigger: str = ""
+    """The switcher's trigger (``RunConfig.trigger``); "": the family's."""
 
 
 def selected_objects(config: EvalConfig, subset: tuple | None = None) -> list[tuple]:

@@ -29,6 +29,10 @@ class RunConfig:
     """Scenario seed (pile choice) and untrained-policy seed."""
     untrained_hidden_sizes: tuple[int, ...] | None = None
     """Hidden sizes of untrained policies (None: the paper's)."""
+    trigger: str = ""
+    """When the switcher scores the next stages between decisions (``SwitcherParams.trigger``: "next", the paper's
+    c^{i+1} > 1 every tick; "any_later"; "decision", only at a stage's end); "": the family's
+    (``chain_settings.SWITCH_TRIGGER``)."""
     refetches: int = 0
     """With a retrieve stage in the chain: the most other blocks of the same type fetched, one after another, when
     the retrieve ends with the target still in the pile (``evaluation/refetch.py``); 0 (the default, as the main

@@ -32,7 +32,7 @@ from seqdex_drake.controller.chain_controller import (
     MakeChainController,
     SetChainTarget,
 )
-from seqdex_drake.controller.switcher import SwitcherParams
+from seqdex_drake.controller.switcher import TRIGGERS, SwitcherParams
 from seqdex_drake.evaluation.chain_settings import (
     APPROACH_STAGES,
     APPROACH_TIMEOUT,
@@ -44,6 +44,7 @@ from seqdex_drake.evaluation.chain_settings import (
     FREE_OBJECT_STAGES,
     HANDOVER_SETTLE,
     REENGAGE,
+    SWITCH_TRIGGER,
     TIMEOUT_FAMILIES,
 )
 from seqdex_drake.evaluation.display import ChainStatusDisplay
@@ -128,8 +129,11 @@ class ChainRunner:
         else:
             self.missing = [f"stage {i} ({task}): no checkpoint directory given (--checkpoints); the stage runs "
                             f"an untrained policy" for i, task in enumerate(self.tasks)]
+        trigger = config.trigger or SWITCH_TRIGGER[config.family]
+        if trigger not in TRIGGERS:
+            raise ChainRunError(f"unknown switcher trigger '{trigger}'; valid: {', '.join(TRIGGERS)}")
         params = ChainParams(switcher=SwitcherParams(max_switches=config.max_switches,
-                                                     stage_steps=config.stage_steps),
+                                                     stage_steps=config.stage_steps, trigger=trigger),
                              untrained_seed=config.seed, stage_configs=stage_configs,
                              reengage_distance=REENGAGE,
                              travel_height=BLOCK_TRAVEL_HEIGHT if config.family == "building_blocks" else 0.0,
