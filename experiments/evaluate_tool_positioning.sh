@@ -14,7 +14,8 @@ SEQDEX=${SEQDEX:-.venv/bin/seqdex}
 OUT=results/tool_positioning
 COMMON=(--task tool_positioning --seed 100 --seeds 3 --workers 2 --skip-ablations "$@")
 
-# Ours: the shipped chain with the switcher (at most 3 switches), the hammer.
+# Ours: the shipped chain with the switcher (at most 3 switches; it decides where a stage ends, the tool chain's
+# trigger in evaluation/chain_settings.SWITCH_TRIGGER), the hammer.
 "$SEQDEX" evaluate "${COMMON[@]}" --episodes 34 --objects hammer --run-dir checkpoints/tool_positioning \
     --max-switches 3 --out "$OUT/eval_switcher" --label "ours (switcher, at most 3 switches)"
 # Ours without the switcher: each stage runs its time budget in order.
@@ -48,3 +49,21 @@ done
 # The unseen tools with the switcher.
 "$SEQDEX" evaluate "${COMMON[@]}" --episodes 34 --objects spatula spoon --run-dir checkpoints/tool_positioning \
     --max-switches 3 --out "$OUT/eval_switcher_unseen" --label "ours (switcher, at most 3 switches)"
+# The paper's switch timing (c^{i+1} every tick) on the same episodes: ours and ours w/o temporal.
+"$SEQDEX" evaluate "${COMMON[@]}" --episodes 34 --objects hammer --run-dir checkpoints/tool_positioning \
+    --max-switches 3 --trigger next --out "$OUT/eval_switcher_next" \
+    --label "ours (switcher, at most 3 switches, trigger next)"
+"$SEQDEX" evaluate "${COMMON[@]}" --episodes 34 --objects hammer \
+    --run-dir checkpoints/baselines/tool_positioning_no_temporal --max-switches 3 --trigger next \
+    --out "$OUT/eval_no_temporal_switcher_next" \
+    --label "ours w/o temporal, same budget (switcher, at most 3 switches, trigger next)"
+# The switcher's timing on fresh seeds 200-202 (chosen on 100-102): where a stage ends (the shipped "decision"), the
+# paper's every tick ("next"), and no switches.
+for trigger in decision next; do
+    "$SEQDEX" evaluate --task tool_positioning --seed 200 --seeds 3 --workers 2 --skip-ablations "$@" --episodes 34 \
+        --objects hammer --run-dir checkpoints/tool_positioning --max-switches 3 --trigger "$trigger" \
+        --out "$OUT/fresh_seeds_200/$trigger" --label "ours (switcher, trigger $trigger)"
+done
+"$SEQDEX" evaluate --task tool_positioning --seed 200 --seeds 3 --workers 2 --skip-ablations "$@" --episodes 34 \
+    --objects hammer --run-dir checkpoints/tool_positioning --max-switches 0 --out "$OUT/fresh_seeds_200/sequential" \
+    --label "ours (sequential)"

@@ -15,11 +15,12 @@ from seqdex_drake.evaluation.runner import ChainRunner
 ROOT = Path(__file__).resolve().parent.parent
 RECORDS = ROOT / "results" / "tool_positioning" / "eval_switcher" / "episodes.jsonl"
 #: The evaluation of the record: ``seqdex evaluate --task tool_positioning --seed 100 --seeds 3 --objects hammer
-#: --max-switches 3 --run-dir checkpoints/tool_positioning`` (experiments/evaluate_tool_positioning.sh).
+#: --max-switches 3 --run-dir checkpoints/tool_positioning`` (experiments/evaluate_tool_positioning.sh; the tool
+#: chain's switcher trigger, ``chain_settings.SWITCH_TRIGGER``).
 CONFIG = EvalConfig(family="tool_positioning", run_dir=str(ROOT / "checkpoints" / "tool_positioning"),
                     seeds=(100, 101, 102), max_switches=3)
 #: Recorded episodes (seed, episode) to replay: the hammer grasped, handed over, turned (a few seconds each).
-REPLAYED = [(100, 3), (100, 9)]
+REPLAYED = [(100, 5), (100, 9)]
 HAMMER = 0
 TAGS = ("experiment", "setting", "seed", "object", "episode")
 
