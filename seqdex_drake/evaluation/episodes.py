@@ -27,6 +27,17 @@ def run_config(config, **overrides) -> RunConfig:
     return RunConfig(**settings)
 
 
+def current_score(runner: ChainRunner, stage: int) -> float:
+    """c^stage on the switcher's history as it is now (after this tick's update), whatever its trigger computed
+    this tick; NaN where the stage has no F or before its first observation. With the paper's timing the switcher
+    computed the same value this tick; deciding only where a stage ends, it computed none."""
+    switcher = runner.controller.GetSubsystemByName("switcher")
+    if not switcher.has_feasibility(stage):
+        return float("nan")
+    history = switcher.history(switcher.GetMyContextFromRoot(runner.context), stage - 1)
+    return float(switcher.score(stage, history)) if len(history) else float("nan")
+
+
 def run_episode(runner: ChainRunner, config, key, seed: int, episode: int,
                 scatter: bool) -> tuple[dict, list, list]:
     """Runs one object's episode (seeded by ``seed, key, episode``): its result and, if ``scatter``, the object's
@@ -61,7 +72,7 @@ def run_episode(runner: ChainRunner, config, key, seed: int, episode: int,
             X = r.object_pose()
             entries[entered] = [float(X.rotation().matrix()[2, 2]), float(X.translation()[2] - start_height)]
         if scatter:
-            c = float(r.chain_output("feasibility_scores")[stage])
+            c = current_score(r, stage)
             if np.isfinite(c):
                 rpy.append(RollPitchYaw(r.object_pose().rotation()).vector())
                 scores.append(c)
