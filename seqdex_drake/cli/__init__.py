@@ -41,6 +41,10 @@ for _source, _target in _chain_links():
 NEXT_TASK = {source: targets[0] for source, targets in NEXT_TASKS.items()}
 
 #: ``--objects``' help (``seqdex rollout``, ``seqdex collect``).
+#: ``--trigger``'s help (``seqdex evaluate``, ``seqdex simulate``): ``SwitcherParams.trigger``'s values.
+TRIGGER_HELP = ("when the switcher scores the next stages between decisions: next (c^{i+1} every tick, the paper's), "
+                "any_later, or decision (only at a stage's end); default: the task's "
+                "(evaluation/chain_settings.SWITCH_TRIGGER)")
 OBJECTS_HELP = ("draw the reset's object from these only: block types 1 .. 8 (6-8 unseen in training), or tools "
                 "hammer, spatula, spoon (default: the task's, the trained ones)")
 

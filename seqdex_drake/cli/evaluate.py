@@ -20,7 +20,7 @@ object (unless ``--episodes``), 6-tick stages, 1 s episodes, small untrained net
 from pathlib import Path
 
 from seqdex_drake.chaining.chain import LoadChain
-from seqdex_drake.cli import CliError
+from seqdex_drake.cli import TRIGGER_HELP, CliError
 from seqdex_drake.controller.switcher import TRIGGERS
 from seqdex_drake.evaluation.experiments import EvalConfig, Evaluation, history_available, progress_bar, total_episodes
 from seqdex_drake.evaluation.parallel import EvaluationWorkerError
@@ -55,8 +55,7 @@ def add_parser(commands) -> None:
                         help="another chain of the family's stages (diagrams/chains.yaml), e.g. "
                              "building_blocks_policies (without the scripted retrieve); default: the family's own")
     parser.add_argument("--trigger", choices=TRIGGERS, default="",
-                        help="when the switcher scores the next stages between decisions: next (c^{i+1} every "
-                             "tick, the paper's), any_later, or decision (only at a stage's end); default: the task's")
+                        help=TRIGGER_HELP)
     parser.add_argument("--test", action="store_true", help="a tiny budget for smoke tests and CI")
 
 

@@ -28,7 +28,7 @@ from pydrake.geometry import Meshcat, MeshcatParams
 
 from seqdex_drake.atomic import atomic_write
 from seqdex_drake.chaining.chain import LoadChain
-from seqdex_drake.cli import CliError
+from seqdex_drake.cli import TRIGGER_HELP, CliError
 from seqdex_drake.controller.switcher import TRIGGERS
 from seqdex_drake.evaluation.runner import ChainRunError, ChainRunner, RunConfig
 from seqdex_drake.manual import LoadManual, ManualError, goal_vector
@@ -58,8 +58,7 @@ def add_parser(commands) -> None:
     parser.add_argument("--seed", type=int, default=0, help="random seed (pile, tool yaw, untrained policies)")
     parser.add_argument("--max-switches", type=int, default=3, help="feasibility switches per object (default 3)")
     parser.add_argument("--trigger", choices=TRIGGERS, default="",
-                        help="when the switcher scores the next stages between decisions: next (c^{i+1} every "
-                             "tick, the paper's), any_later, or decision (only at a stage's end); default: the task's")
+                        help=TRIGGER_HELP)
     parser.add_argument("--duration", type=float, default=float("inf"),
                         help="stop after this many simulated seconds (default: when the manual is done)")
     parser.add_argument("--headless", action="store_true", help="no meshcat")
