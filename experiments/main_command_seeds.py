@@ -63,14 +63,16 @@ def parse_seeds(text: str) -> list[int]:
 
 class Funnel:
     """Where a block got to, from the object as each stage first started: taken out of the pile onto the staging
-    area when Orient starts (with a retrieve stage), upright when Grasp starts, lifted when Insert starts."""
+    area when Orient starts (with a retrieve stage; its centre over the area and resting on the table, the
+    retrieve's own test ``tasks/retrieve.block_staged``), upright when Grasp starts, lifted when Insert starts."""
 
     def __init__(self):
         self.entries: dict[str, tuple] = {}
         self.start_z, self.refetches = None, 0
 
     def record(self, runner) -> bool:
-        from seqdex_drake.tasks.scripted.block_retrieve_script import on_staging_area
+        from seqdex_drake.tasks.retrieve import block_staged
+        from seqdex_drake.tasks.search import block_type_of
 
         X = runner.object_pose()
         if runner.refetches != self.refetches:  # Another block fetched: its own funnel.
@@ -79,7 +81,7 @@ class Funnel:
             self.start_z = float(X.translation()[2])
         stage = runner.tasks[int(runner.chain_output("active_stage")[0])]
         if stage not in self.entries:
-            self.entries[stage] = (on_staging_area(X.translation()), float(X.rotation().matrix()[2, 2]),
+            self.entries[stage] = (block_staged(X, block_type_of(runner.target)), float(X.rotation().matrix()[2, 2]),
                                    float(X.translation()[2]) - self.start_z)
         return True
 
