@@ -2,9 +2,11 @@
 switches) from its default seed places its first block: the chain fetches the manual's first block, a type-5 1x4,
 from the 72-block pile; Search uncovers it, the scripted retrieve takes it out of the pile and sets it down on the
 staging area, Orient stands it up there, and after the switcher's restarts Grasp lifts it and Insert seats it on
-its goal on the baseplate (about 42 s simulated, about 2.5 min on a core). ``results/building_blocks.md`` gives the
-other seeds."""
+its goal on the baseplate (about 42 s simulated, about 2.5 min on a core). The episode's record is the one
+``experiments/main_command_seeds.py`` wrote for this seed in ``results/building_blocks/main_command_first_block.json``
+(the same seed gives the same record); ``results/building_blocks.md`` gives the other seeds."""
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +17,9 @@ from seqdex_drake.scene.piles import BOX_CENTER, BOX_INNER_HALF
 from seqdex_drake.tasks.retrieve import block_staged
 
 DEFAULT_SEED = 0  # scripts/simulate_chain.py's default.
-SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints" / "building_blocks"
+REPO = Path(__file__).resolve().parents[1]
+SHIPPED = REPO / "checkpoints" / "building_blocks"
+RECORD = REPO / "results" / "building_blocks" / "main_command_first_block.json"
 UPRIGHT = np.cos(np.radians(20.0))
 
 
@@ -46,3 +50,8 @@ def test_the_main_command_places_its_first_block_from_its_default_seed():
     assert grasp_starts and grasp_starts[-1] >= UPRIGHT  # Stood up when Grasp started on it.
     assert outcome.success and runner.is_success()  # Seated on its goal, let go, at rest.
     assert outcome.position_error < 0.02 and outcome.rotation_error < 0.2
+    recorded = next(row for row in json.loads(RECORD.read_text())["per_block"] if row["seed"] == DEFAULT_SEED)
+    assert (name, round(outcome.time, 2), round(float(outcome.position_error), 4),
+            round(float(outcome.rotation_error), 4), int(outcome.switches)) == \
+        (recorded["block"], recorded["time"], recorded["position_error"], recorded["rotation_error"],
+         recorded["switches"])  # The recorded episode, replayed.
