@@ -7,8 +7,8 @@ physical test (``ChainRunner.is_success``: within 2 cm and 0.2 rad of its goal, 
 
     python experiments/main_command_seeds.py --seeds 0-31 --blocks 1 --workers 2 \\
         --out results/building_blocks/main_command_first_block.json
-    python experiments/main_command_seeds.py --seeds 0-15 --workers 2 --out
-    results/building_blocks/main_command_manual.json
+    python experiments/main_command_seeds.py --seeds 0-31 --workers 2 \\
+        --out results/building_blocks/main_command_manual.json
     python experiments/main_command_seeds.py --test     # one seed, the first block cut to 0.5 s, for CI
 
 When the retrieve cannot take a block out of the pile, the chain fetches another of its type, at most
@@ -17,7 +17,9 @@ When the retrieve cannot take a block out of the pile, the chain fetches another
 Writes JSON: per block the seed, its index in the manual, type, the block fetched first and last, the refetches,
 whether it was placed, its errors, simulated time and switches, the funnel of the last block fetched (on the
 staging area when Orient first starts, upright when Grasp first starts, lifted when Insert first starts); and the
-placed counts per manual step. About 4 min per block on a core.
+placed counts per manual step and the seeds that placed the whole manual (``manual_placed``). The record is
+written after every seed (with ``seeds_done`` until the last), so a stopped run keeps what it finished. About
+4 min per block on a core.
 """
 
 import argparse
@@ -166,6 +168,21 @@ def main(argv=None) -> int:
     jobs = [(seed, args.checkpoints, args.manual, blocks, args.max_switches, args.refetches, args.trigger,
              0.5 if args.test else None)
             for seed in seeds]
+    from seqdex_drake import numerics
+
+    def write(rows: list[dict], done: bool) -> None:
+        """The record (atomically; after every seed, so a stopped run keeps the seeds it finished)."""
+        placed = [sum(row["placed"] for row in rows if row["step"] == k) for k in range(blocks)]
+        result = {"checkpoints": args.checkpoints, "manual": args.manual, "max_switches": args.max_switches,
+                  "refetches": args.refetches,
+                  "trigger": args.trigger or SWITCH_TRIGGER["building_blocks"], "seeds": seeds, "blocks": blocks,
+                  **({} if done else {"seeds_done": sorted({row["seed"] for row in rows})}),
+                  "placed_per_step": placed, "seeds_placing": sorted({row["seed"] for row in rows if row["placed"]}),
+                  "manual_placed": sorted(seed for seed in {row["seed"] for row in rows}
+                                          if sum(row["placed"] for row in rows if row["seed"] == seed) == blocks),
+                  "machine": numerics.machine(), "per_block": rows}
+        atomic_write(args.out, lambda file: file.write((json.dumps(result, indent=2) + "\n").encode()))
+
     rows = []
     with get_context("spawn").Pool(min(args.workers, len(jobs))) as pool:
         for seed_rows in pool.imap(run_seed, jobs):
@@ -175,17 +192,14 @@ def main(argv=None) -> int:
                       f"{row['position_error'] * 100:.1f} cm {np.degrees(row['rotation_error']):.0f} deg "
                       f"({row['wall_seconds']:.0f} s wall)", flush=True)
             rows.extend(seed_rows)
+            if args.out:
+                write(rows, done=False)
     placed = [sum(row["placed"] for row in rows if row["step"] == k) for k in range(blocks)]
     seeds_placing = sorted({row["seed"] for row in rows if row["placed"]})
     print(f"main_command_seeds: placed per manual step {placed} of {len(seeds)} seeds; seeds placing a block: "
           f"{seeds_placing}")
     if args.out:
-        result = {"checkpoints": args.checkpoints, "manual": args.manual, "max_switches": args.max_switches,
-                  "refetches": args.refetches,
-                  "trigger": args.trigger or SWITCH_TRIGGER["building_blocks"], "seeds": seeds, "blocks": blocks,
-                  "placed_per_step": placed, "seeds_placing": seeds_placing,
-                  "per_block": rows}
-        atomic_write(args.out, lambda file: file.write((json.dumps(result, indent=2) + "\n").encode()))
+        write(rows, done=True)
         print(f"main_command_seeds: wrote {args.out}")
     return 0
 

@@ -162,6 +162,32 @@ def _check_stacking(source: str, manual: AssemblyManual) -> None:
         occupied.update({(i, j, step.level): index for i, j in cells})
 
 
+def pinch_conflicts(manual: AssemblyManual) -> list[str]:
+    """Steps whose block the chain's hand cannot set down: an earlier cell-placed block in a cell next to its
+    footprint along world x, at its level or above. Grasp's pinch holds every block across world x (the wrist
+    does not turn), its index and middle tips on the block's +x face and the thumb on its -x face, 6-12 mm above
+    the block's bottom; the block is as wide as a stud cell (both 3 cm), so a neighbour along x leaves the
+    fingers no room and Insert lands the block on it. Neighbours along y are fine. One line per conflict
+    (empty when the hand can build the manual); shown by the main command, not an error (the structure is valid)."""
+    occupied: dict[tuple[int, int, int], int] = {}
+    problems = []
+    for index, step in enumerate(manual.steps):
+        if step.cell is None:
+            continue
+        span = _footprint_cells(step)
+        rows = range(step.cell[1], step.cell[1] + span[1])
+        sides = (step.cell[0] - 1, step.cell[0] + span[0])
+        blockers = sorted({occupied[(i, j, level)] + 1 for i in sides for j in rows for level in
+                           range(step.level, MAX_LEVEL + 1) if (i, j, level) in occupied})
+        if blockers:
+            problems.append(f"step {index + 1} (block {step.block_type}): step(s) {blockers} beside it along "
+                            f"world x leave the pinch's fingers no room (leave a free cell along x, or put "
+                            f"neighbours along y)")
+        occupied.update({(step.cell[0] + di, step.cell[1] + dj, step.level): index for di in range(span[0])
+                         for dj in range(span[1])})
+    return problems
+
+
 def _check_keys(source: str, data) -> None:
     """Unknown keys, named with their step (yaml_load_typed's message does not say which step)."""
     if not isinstance(data, dict):

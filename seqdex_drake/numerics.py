@@ -46,6 +46,20 @@ def _cpu_flags() -> set[str]:
     return set()
 
 
+def cpu_model() -> str:
+    """The CPU's model name from /proc/cpuinfo (Linux), else :func:`platform.processor`: records carry it because
+    the pinned kernels still give different bits on different CPU models (Drake's contact solve on AMD EPYC did not
+    replay records made on the previous development machine)."""
+    try:
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as stream:
+            for line in stream:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown"
+
+
 def pinnable() -> bool:
     """Whether this machine runs the pinned kernels: x86-64 with AVX2 and FMA."""
     return platform.machine().lower() in ("x86_64", "amd64") and {"avx2", "fma"} <= _cpu_flags()
@@ -76,3 +90,8 @@ def status() -> str:
     if differing:
         return f"not pinned: {differing} set otherwise (the user's choice)"
     return "pinned to AVX2 kernels (OpenBLAS Haswell, numpy and Drake without AVX-512, torch avx2)"
+
+
+def machine() -> str:
+    """One line for a record: the CPU model and whether the numerics are pinned (what an exact replay needs)."""
+    return f"CPU {cpu_model()}; numerics {status()}"

@@ -149,3 +149,31 @@ def test_the_learned_stages_run_as_their_own_chain_and_fetch_the_block_easiest_t
     assert switcher.params.trigger == SWITCH_TRIGGER["building_blocks"]  # The family's, as the main command's
     with pytest.raises(ChainRunError, match="unknown switcher trigger 'often'; valid: next, any_later, decision"):
         ChainRunner(RunConfig(family="building_blocks", chain="building_blocks_policies", trigger="often"))
+
+
+def test_a_pile_block_knocked_off_the_table_is_parked_not_left_to_fall_until_the_state_diverges():
+    """Nothing below the table catches a block (the floor is not modelled): one that leaves the table is parked
+    at once (``FELL_BELOW``); left to fall, one fell for 14 s, past the divergence bound, and ended a whole-manual
+    run as diverged."""
+    from pydrake.math import RigidTransform
+
+    from seqdex_drake.evaluation.runner import FELL_BELOW
+
+    runner = ChainRunner(RunConfig(family="building_blocks", max_switches=0, stage_steps=(3,) * 5,
+                                   untrained_hidden_sizes=(16,), seed=0, refetches=0))
+    step = LoadManual("small_wall").steps[0]
+    target = runner.start_block(step.block_type, goal_vector(step))
+    other = next(name for name in runner.objects.names if name.startswith("block_") and name != target)
+    runner.objects.set_pose(runner.context, other, RigidTransform([1.2, 0.0, 0.75]), frozen=False)  # Off the edge.
+    heights = []
+
+    def on_tick(r) -> bool:
+        heights.append(r.objects.positions(r.context)[r.objects.index(other), 6])
+        return len(heights) < 60
+
+    outcome = runner.run(5.0, on_tick=on_tick, stop_on_success=False)
+    assert outcome.simulator_error == "" and not outcome.fell  # The target never moved; the episode went on.
+    assert other in runner.objects.frozen_names(runner.context)
+    X = runner.objects.positions(runner.context)[runner.objects.index(other)]
+    np.testing.assert_allclose(X[4:], runner.objects.parking_pose(other).translation(), atol=1e-6)
+    assert min(heights) >= FELL_BELOW - 0.05  # Parked within a tick of crossing the bound (0.15 m of fall).

@@ -24,6 +24,8 @@ def test_short_run_writes_the_first_blocks_record(tmp_path):
     record = json.loads(out.read_text())
     assert record["seeds"] == [0] and record["blocks"] == 1 and record["placed_per_step"] == [0]
     assert record["refetches"] == 0 and record["trigger"] == "next"
+    # The finished record (written after every seed; "seeds_done" only while seeds remain), its whole-manual list.
+    assert "seeds_done" not in record and record["manual_placed"] == [] and record["machine"].startswith("CPU ")
     (row,) = record["per_block"]
     assert row["seed"] == 0 and row["step"] == 0 and row["block_type"] == 5 and row["block"].startswith("block_5_")
     # Cut to 0.5 s: Search has barely started, the block is still in the box, far from its goal on the baseplate.

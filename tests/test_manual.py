@@ -13,6 +13,7 @@ from seqdex_drake.manual import (
     ManualNames,
     ManualStep,
     goal_pose,
+    pinch_conflicts,
 )
 
 
@@ -25,6 +26,24 @@ def test_shipped_manuals_load():
             X = goal_pose(step)
             assert np.all(np.abs(X.translation()[:2] - BOARD_ORIGIN[:2]) < 0.18)
             assert X.translation()[2] >= BOARD_TOP - 1e-9
+
+
+def test_pinch_conflicts_name_a_block_beside_an_earlier_one_along_x_and_the_shipped_manuals_have_none():
+    """Grasp's pinch holds a block by its +-x faces; a block 3 cm wide beside another along x leaves no room."""
+    text = """steps:
+- {block_type: 5, cell: [5, 8], level: 0, yaw_deg: 90}
+- {block_type: 4, cell: [6, 8], level: 0, yaw_deg: 90}
+- {block_type: 1, cell: [5, 1], level: 0, yaw_deg: 90}
+- {block_type: 4, cell: [5, 4], level: 0, yaw_deg: 90}
+- {block_type: 1, cell: [7, 2], level: 0, yaw_deg: 90}
+- {block_type: 1, cell: [5, 9], level: 1, yaw_deg: 90}
+"""
+    problems = pinch_conflicts(LoadManual(text=text))
+    # Step 2 beside step 1 along x; step 4 touches step 3 end to end along y (fine); step 5 has a free cell between
+    # it and step 3 (fine); step 6 on top of step 1 has nothing beside it at its level (step 2 is one level below).
+    assert len(problems) == 1 and problems[0].startswith("step 2 (block 4): step(s) [1]")
+    for name in ManualNames():
+        assert pinch_conflicts(LoadManual(name)) == [], name
 
 
 def test_cell_goals_are_on_the_stud_grid():

@@ -1,6 +1,7 @@
 """The shipped tool chain is reproducible: recorded ``seqdex evaluate`` episodes (``results/tool_positioning/
 eval_switcher``, held-out seeds; the trained F^reorient hands the hammer over in them) replay bit-identically in a
-fresh runner, whatever episodes the recording's worker ran before them."""
+fresh runner, whatever episodes the recording's worker ran before them, on the CPU model that made them (its table
+names it: the pinned kernels still round differently on other CPU models, docs/architecture.md)."""
 
 import json
 from pathlib import Path
@@ -8,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from seqdex_drake import numerics
 from seqdex_drake.evaluation.episodes import run_config, run_episode
 from seqdex_drake.evaluation.experiments import EvalConfig
 from seqdex_drake.evaluation.runner import ChainRunner
@@ -39,12 +41,18 @@ def _record(seed: int, episode: int) -> dict:
     raise AssertionError(f"{RECORDS} has no episode ({seed}, {episode}): regenerate the test's choice with it")
 
 
+def _made_on() -> str:
+    table = (RECORDS.parent / "table2_tool_positioning.md").read_text().splitlines()
+    return next((line.lstrip("- ") for line in table if "made on:" in line), "the record's machine is not named")
+
+
 @pytest.mark.parametrize(("seed", "episode"), REPLAYED)
 def test_recorded_episodes_replay_bit_identically(runner, seed, episode):
     recorded = _record(seed, episode)
     assert recorded["success"] and recorded["switches"] >= 1  # F^reorient switched the chain in the record.
     result, _, _ = run_episode(runner, CONFIG, HAMMER, seed, episode, scatter=False)
-    assert json.loads(json.dumps(result)) == recorded  # Every float to the last bit (JSON keeps them exactly).
+    # Every float to the last bit (JSON keeps them exactly).
+    assert json.loads(json.dumps(result)) == recorded, f"this machine: {numerics.machine()}; {_made_on()}"
 
 
 

@@ -20,6 +20,7 @@ panel ("Open Controls") shows the stage as text and the scores as read-only slid
 """
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
@@ -31,7 +32,7 @@ from seqdex_drake.chaining.chain import LoadChain
 from seqdex_drake.cli import TRIGGER_HELP, CliError
 from seqdex_drake.controller.switcher import TRIGGERS
 from seqdex_drake.evaluation.runner import ChainRunError, ChainRunner, RunConfig
-from seqdex_drake.manual import LoadManual, ManualError, goal_vector
+from seqdex_drake.manual import LoadManual, ManualError, goal_vector, pinch_conflicts
 from seqdex_drake.scenario import ScenarioError
 from seqdex_drake.user_input import MAX_SEED, check_creatable
 
@@ -110,12 +111,15 @@ def run(args) -> int:
     check_args(args)
     if args.task == "building_blocks":
         try:
-            args.manual_steps = LoadManual(args.manual).steps
+            manual = LoadManual(args.manual)
         except ManualError as error:
             raise CliError(str(error)) from error
         except (OSError, UnicodeDecodeError) as error:  # A directory, an unreadable or a binary file.
             reason = "not a text file" if isinstance(error, UnicodeDecodeError) else (error.strerror or error)
             raise CliError(f"--manual {args.manual}: cannot read it as a YAML assembly manual ({reason})") from error
+        args.manual_steps = manual.steps
+        for problem in pinch_conflicts(manual):  # A valid structure the hand may still not build.
+            print(f"seqdex simulate: warning: --manual {args.manual}: {problem}", file=sys.stderr)
     if args.checkpoints is not None and not Path(args.checkpoints).is_dir():
         what = "is a file, not a directory" if Path(args.checkpoints).exists() else "does not exist"
         raise CliError(f"--checkpoints {args.checkpoints} {what}; name a chain run directory or a shipped "

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from seqdex_drake import numerics
 from seqdex_drake.chaining.chain import LoadChain
 from seqdex_drake.evaluation.episodes import (  # noqa: F401
     SCATTER_STAGE,
@@ -167,7 +168,8 @@ class Evaluation:
         notes = [f"{self.config.episodes} episode(s) per object and seed, seeds {list(self.config.seeds)}; "
                  f"success rate mean ± std over seeds",
                  f"untrained stages: {', '.join(untrained)}" if untrained else "every stage trained",
-                 *handover_notes(self.config.family, results)]
+                 *handover_notes(self.config.family, results),
+                 f"made on: {numerics.machine()} (exact replays need the same)"]
         table = "table1_building_blocks" if self.config.family == "building_blocks" else "table2_tool_positioning"
         return list(write_table(self.out / table, f"Success rate, {self.config.family} (run {self.config.run_dir})",
                                 [self.config.label or f"ours (max {self.config.max_switches} switches)"], columns,

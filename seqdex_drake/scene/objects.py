@@ -94,6 +94,14 @@ class SceneObjects:
         """Boolean mask of frozen objects."""
         return self.freezer.frozen_set(self.freezer.GetMyContextFromRoot(root)).frozen.copy()
 
+    def fallen(self, root: Context, below: float) -> list[str]:
+        """The awake objects whose origin is below world height ``below`` [m]: knocked off the table, where
+        nothing catches them (the floor is not modelled), they would fall for ever and blow the state up."""
+        z = self.plant.GetPositions(self.plant.GetMyContextFromRoot(root))[self._q_index[:, 6]].tolist()
+        frozen = self.freezer.frozen_set(self.freezer.GetMyContextFromRoot(root)).frozen.tolist()
+        return [name for name, height, is_frozen in zip(self.names, z, frozen, strict=True)
+                if height < below and not is_frozen]
+
     def frozen_names(self, root: Context) -> list[str]:
         return [n for n, f in zip(self.names, self.frozen_mask(root), strict=True) if f]
 
