@@ -388,7 +388,7 @@ class ChainRunner:
             self.objects.update(self.context)
             if self.object_pose().translation()[2] < FELL_BELOW:
                 return dataclasses.replace(self._outcome(False, self.errors()), fell=True)
-            fallen = self.objects.fallen(self.context, FELL_BELOW)
+            fallen = self.objects.fallen(self.context, FELL_BELOW, state)
             if fallen:  # Other objects knocked off the table leave the scene (parked) instead of falling for ever
                 self.objects.park(self.context, fallen)  # until the state diverges (a pile block, 14 s later).
             if self._watch.due(int(self.chain_output("active_stage")[0]), self.target_in_pile):

@@ -94,10 +94,12 @@ class SceneObjects:
         """Boolean mask of frozen objects."""
         return self.freezer.frozen_set(self.freezer.GetMyContextFromRoot(root)).frozen.copy()
 
-    def fallen(self, root: Context, below: float) -> list[str]:
+    def fallen(self, root: Context, below: float, plant_state: np.ndarray | None = None) -> list[str]:
         """The awake objects whose origin is below world height ``below`` [m]: knocked off the table, where
-        nothing catches them (the floor is not modelled), they would fall for ever and blow the state up."""
-        z = self.plant.GetPositions(self.plant.GetMyContextFromRoot(root))[self._q_index[:, 6]].tolist()
+        nothing catches them (the floor is not modelled), they would fall for ever and blow the state up.
+        ``plant_state``: the plant's [q, v], where the caller has it already."""
+        x = self.plant.GetPositions(self.plant.GetMyContextFromRoot(root)) if plant_state is None else plant_state
+        z = x[self._q_index[:, 6]].tolist()
         frozen = self.freezer.frozen_set(self.freezer.GetMyContextFromRoot(root)).frozen.tolist()
         return [name for name, height, is_frozen in zip(self.names, z, frozen, strict=True)
                 if height < below and not is_frozen]
