@@ -67,3 +67,14 @@ done
 "$SEQDEX" evaluate --task tool_positioning --seed 200 --seeds 3 --workers 2 --skip-ablations "$@" --episodes 34 \
     --objects hammer --run-dir checkpoints/tool_positioning --max-switches 0 --out "$OUT/fresh_seeds_200/sequential" \
     --label "ours (sequential)"
+# The paired comparisons of results/tool_positioning.md (exact McNemar on the same 102 episodes): reads the records.
+R=$OUT/eval
+PYTHON=${PYTHON:-.venv/bin/python}
+"$PYTHON" scripts/paired_table.py --row switcher=${R}_switcher --row switches_1=${R}_switches_1 \
+    --row switches_2=${R}_switches_2 --row sequential=${R}_sequential --row policy_seq=${R}_policy_seq \
+    --row tstar=${R}_tstar --row no_temporal=${R}_no_temporal_sequential \
+    --row no_temporal_switcher=${R}_no_temporal_switcher --row next=${R}_switcher_next \
+    --row no_temporal_next=${R}_no_temporal_switcher_next --pair switcher:sequential --pair switches_2:sequential \
+    --pair switches_1:sequential --pair next:sequential --pair sequential:policy_seq --pair sequential:tstar \
+    --pair tstar:policy_seq --pair sequential:no_temporal --pair no_temporal:policy_seq \
+    --pair switcher:no_temporal_switcher --pair next:no_temporal_next --out "$OUT/paired.md"

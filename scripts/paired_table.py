@@ -3,7 +3,8 @@
     python scripts/paired_table.py --row switcher=results/tool_positioning/eval_switcher \
         --row sequential=results/tool_positioning/eval_sequential --pair switcher:sequential [--out table.md]
 
-Each ``--row NAME=DIR`` names an evaluation output directory (its ``episodes.jsonl``); each ``--pair A:B`` adds a
+Each ``--row NAME=DIR`` names an evaluation output directory (its ``episodes.jsonl``) or a main-command record (a
+``.json`` of ``experiments/main_command_seeds.py``, a block per seed and manual step); each ``--pair A:B`` adds a
 line: the episodes both rows played, their successes, the four cells and the McNemar p-value
 (:mod:`seqdex_drake.evaluation.paired`).
 """
@@ -19,7 +20,8 @@ from seqdex_drake.user_input import InputError, check_creatable
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--row", action="append", required=True, metavar="NAME=DIR",
-                        help="a row: its name and seqdex evaluate output directory (repeat)")
+                        help="a row: its name and a seqdex evaluate output directory or main_command_seeds.py "
+                             "record (repeat)")
     parser.add_argument("--pair", action="append", required=True, metavar="A:B", help="compare rows A and B (repeat)")
     parser.add_argument("--out", help="also write the table to this Markdown file")
     return parser.parse_args(argv)

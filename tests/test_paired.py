@@ -71,3 +71,23 @@ def test_the_script_writes_the_table_and_refuses_bad_input(tmp_path):
                           (["--row", f"ours={tmp_path / 'broken'}", "--pair", "ours:ours"], "broken/episodes.jsonl:1")]:
         bad = subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True, timeout=120)
         assert bad.returncode == 2 and message in bad.stderr and "Traceback" not in bad.stderr, bad.stderr
+
+
+def test_main_command_records_pair_by_seed_and_manual_step(tmp_path):
+    """The main command's records (experiments/main_command_seeds.py) are rows too: the recorded first-block figures
+    with and without the switcher (results/building_blocks.md: 16 and 13 of 32, 7 and 4 discordant)."""
+    records = Path(__file__).resolve().parent.parent / "results" / "building_blocks"
+    switcher = load_outcomes(records / "main_command_first_block.json")
+    assert len(switcher) == 32 and set(switcher) == {(seed, 0, 0) for seed in range(32)}
+    c = compare("switcher", switcher, "sequential", load_outcomes(records / "main_command_first_block_sequential.json"))
+    assert (c.episodes, c.first_successes, c.second_successes, c.only_first, c.only_second) == (32, 16, 13, 7, 4)
+    assert c.p == pytest.approx(mcnemar_p(7, 4))
+    manual = load_outcomes(records / "main_command_manual.json")
+    assert len(manual) == 48 and sum(manual[(seed, 1, 0)] for seed in range(32) if (seed, 1, 0) in manual) == 7
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"per_block": [{"seed": 0}]}))
+    with pytest.raises(ValueError, match="not a main_command_seeds.py record"):
+        load_outcomes(bad)
+    result = subprocess.run([sys.executable, str(SCRIPT), "--row", f"a={bad}", "--row", f"b={bad}", "--pair", "a:b"],
+                            capture_output=True, text=True)
+    assert result.returncode == 2 and "not a main_command_seeds.py record" in result.stderr

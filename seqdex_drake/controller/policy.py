@@ -229,6 +229,14 @@ class PolicySystem(LeafSystem):
                              f"(0..{len(self._body_names) - 1})")
         context.get_mutable_numeric_parameter(self._target_index).SetFromVector([float(body_index)])
 
+    def ticks(self, context: Context) -> int:
+        """Control ticks this stage has acted since it last became active (the step its scripted base sees)."""
+        return int(context.get_discrete_state(self._ticks_index).get_value()[0])
+
+    def scripted_base(self, context: Context):
+        """The scripted base (residual or scripted stage) bound to the current target; None for a pure network."""
+        return None if self._residual_base is None else self._base(context)
+
     def _base(self, context: Context):
         """The residual base bound to the target (unbound when no target is set or no body names are known)."""
         index = int(context.get_numeric_parameter(self._target_index).GetAtIndex(0))
@@ -284,7 +292,7 @@ class PolicySystem(LeafSystem):
     def _update(self, context: Context, discrete_state: DiscreteValues) -> None:
         filtered, raw = self._memory(context)
         active = not self._active_port.HasValue(context) or self._active_port.Eval(context)[0] > 0.5
-        ticks = int(context.get_discrete_state(self._ticks_index).get_value()[0])
+        ticks = self.ticks(context)
         finished = False
         if active:
             observation = self._observation_port.Eval(context)

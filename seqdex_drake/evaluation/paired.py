@@ -1,8 +1,10 @@
 """Paired comparisons of evaluation rows: the same episodes played by two chains, told apart by McNemar's test.
 
 Every ``seqdex evaluate`` row seeds its episodes by (seed, object, episode), so two rows over the same seeds,
-objects and episode counts play the same starts. :func:`load_outcomes` reads a row's ``episodes.jsonl`` (the main
-experiment's records) as ``{(seed, object, episode): success}``; :func:`compare` pairs two rows on the episodes
+objects and episode counts play the same starts; the main command's records (``experiments/main_command_seeds.py``)
+are one chain per seed, a block per manual step. :func:`load_outcomes` reads a row's ``episodes.jsonl`` (the main
+experiment's records) as ``{(seed, object, episode): success}``, or a main-command record as
+``{(seed, manual step, 0): placed}``; :func:`compare` pairs two rows on the episodes
 both played and counts the four cells; the exact two-sided McNemar test (:func:`mcnemar_p`) asks whether the
 discordant pairs (one row succeeds, the other fails) split unevenly beyond chance. :func:`paired_table` writes the
 comparisons as a Markdown table (``scripts/paired_table.py``).
@@ -20,12 +22,16 @@ MAIN_EXPERIMENT = "main"
 
 def load_outcomes(row: str | Path) -> dict[tuple[int, int, int], bool]:
     """``{(seed, object, episode): success}`` of the main experiment's records in ``row`` (an evaluation output
-    directory, or its ``episodes.jsonl``). Raises ValueError for a row without records or with a record that
-    lacks a field, and FileNotFoundError for a missing file, each naming the file."""
+    directory, or its ``episodes.jsonl``), or ``{(seed, manual step, 0): placed}`` of a main-command record (a
+    ``.json`` file written by ``experiments/main_command_seeds.py``). Raises ValueError for a row without records
+    or with a record that lacks a field, and FileNotFoundError for a missing file, each naming the file."""
     path = Path(row)
     path = path / "episodes.jsonl" if path.is_dir() else path
     if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file; give a seqdex evaluate output directory (--out)")
+        raise FileNotFoundError(f"{path}: no such file; give a seqdex evaluate output directory (--out) or a "
+                                f"main_command_seeds.py record (--out)")
+    if path.suffix == ".json":
+        return _main_command_outcomes(path)
     outcomes = {}
     for number, line in enumerate(path.read_text().splitlines(), start=1):
         if not line.strip():
@@ -39,6 +45,18 @@ def load_outcomes(row: str | Path) -> dict[tuple[int, int, int], bool]:
             raise ValueError(f"{path}:{number}: not an episode record ({error})") from error
     if not outcomes:
         raise ValueError(f"{path} holds no episode of the main experiment")
+    return outcomes
+
+
+def _main_command_outcomes(path: Path) -> dict[tuple[int, int, int], bool]:
+    """``{(seed, manual step, 0): placed}`` of a ``main_command_seeds.py`` record."""
+    try:
+        rows = json.loads(path.read_text())["per_block"]
+        outcomes = {(int(row["seed"]), int(row["step"]), 0): bool(row["placed"]) for row in rows}
+    except (ValueError, KeyError, TypeError) as error:
+        raise ValueError(f"{path}: not a main_command_seeds.py record ({error!r})") from error
+    if not outcomes:
+        raise ValueError(f"{path} holds no block")
     return outcomes
 
 
