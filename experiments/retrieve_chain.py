@@ -14,6 +14,7 @@ to a stud-aligned goal on the baseplate. Recorded per episode: the retrieve's ou
     python experiments/retrieve_chain.py --episodes 0-19 --out runs/retrieve/a.json     # one core each
     python experiments/retrieve_chain.py --episodes 20-39 --out runs/retrieve/b.json
     python experiments/retrieve_chain.py --summary runs/retrieve/a.json runs/retrieve/b.json
+    python experiments/retrieve_chain.py --piles train --retrieve-only --episodes 0-39   # the retrieve alone
     python experiments/retrieve_chain.py --test            # one retrieve cut to 30 steps, no chain: for CI
 
 About 2 minutes per episode on a core (the retrieve about 1, the chain about 1).
@@ -123,6 +124,8 @@ def main(argv=None) -> int:
     parser.add_argument("--retrieve-steps", type=int, default=800, help="the retrieve's step budget (default 800)")
     parser.add_argument("--out", help="write the results to this JSON file")
     parser.add_argument("--summary", nargs="+", metavar="JSON", help="only print the counts of these results")
+    parser.add_argument("--retrieve-only", action="store_true",
+                        help="only the retrieve: no chain after it (what the staged count measures)")
     parser.add_argument("--test", action="store_true", help="retrieves cut to 30 steps and no chain, for CI")
     args = parser.parse_args(argv)
     from seqdex_drake.atomic import atomic_write
@@ -153,7 +156,7 @@ def main(argv=None) -> int:
                                                  episode_length=steps + 1, ema=1.0))
     piles = LoadPiles(ResolvePackageUrl(PILES[args.piles]), env.objects.names)
     runner = None
-    if not args.test:
+    if not (args.test or args.retrieve_only):
         runner = ChainRunner(RunConfig(family="building_blocks", run_dir=args.checkpoints, max_switches=0,
                                        seed=args.seed, stage_steps=(1, 75, 150, 125),
                                        chain="building_blocks_policies"))

@@ -86,6 +86,18 @@ def test_rules_from_the_pile_to_the_staging_area():
     assert script.phase(observation(dropped + [0, 0, 0.2], dropped, upright=False), 3 * 100 + 5) == "grip"
 
 
+def test_a_block_held_off_centre_is_carried_until_it_clears_the_near_wall():
+    """The carry's first leg takes the block over the near wall (``over_y``); a block hanging 2 cm behind C (a lying
+    block pinched near one end) never gets there while C stops at ``over_y``: once C is there the carry goes on
+    toward the staging point (the old rule held C at ``over_y`` until the block fell out of the hand)."""
+    script = ScriptedBlockRetrieve(length=LENGTH)
+    C = np.r_[0.25, script.over_y, script.carry_z]
+    centre = C + [0.0, 0.02, 0.0]  # C on the block's long axis (held), the centre 2 cm behind it.
+    o = observation(C, centre, upright=False)
+    assert script.phase(o, 200) == "transfer"
+    assert script.act(o, 200)[17] < -0.1  # Still toward -y, not stalled at C = over_y.
+
+
 def test_the_action_is_a_function_of_the_observation_and_the_step_only():
     o = observation(np.r_[0.25, 0.2, 0.75], resting([0.26, 0.21], upright=False), upright=False)
     first = [ScriptedBlockRetrieve(length=LENGTH).act(o, step) for step in (0, 20, 60, 150)]

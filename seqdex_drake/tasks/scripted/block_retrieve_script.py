@@ -18,8 +18,9 @@ state, so the env and a deployed policy system compute the same action):
   along world x holds lying blocks as it holds upright ones, through the carry too.
 * **Held** means C is within ``held_radius`` of the block's long axis (a block pinched near an end is held
   too). A held block above ``transfer_z`` (clear of the box's walls), or lifted beside the box, is *transferred*:
-  first over the box's near wall to ``over_y`` at ``carry_z``, then to the staging point at ``carry_z``, then
-  lowered until its lowest point touches the table.
+  first over the box's near wall to ``over_y`` at ``carry_z`` (until the block's centre is there, or C is, for a
+  block hanging off-centre behind C: C alone could not take it further, and at ``carry_z`` it is above the wall
+  anyway), then to the staging point at ``carry_z``, then lowered until its lowest point touches the table.
 * **Release.** A held block resting on the table within 3 cm of the staging point: the hand
   returns to the pre-grasp shape (the jaws 7 cm apart, so the block is let go where it stands, not flung by
   straightening fingers) while the wrist rises slowly. Once the block is no longer held the hand rises to
@@ -185,7 +186,7 @@ class ScriptedBlockRetrieve:
         if phase == "lift":  # At full speed: the block must clear the walls before the window ends.
             goal, speed = np.r_[C[:2], self.carry_z + 0.01], 1.0
         elif phase == "transfer":
-            if centre[1] > self.over_y + 0.01:  # Over the box's near wall first.
+            if centre[1] > self.over_y + 0.01 and C[1] > self.over_y + 0.002:  # Over the box's near wall first.
                 goal = np.r_[C[0], self.over_y, self.carry_z]
             else:
                 goal = np.r_[self.stage_xy + (C[:2] - centre[:2]), self.carry_z]
