@@ -212,6 +212,12 @@ def test_retrieve_chain_short_run_writes_its_episodes_alike_whatever_ran_before_
     assert retrieve_chain("--test", "--episodes", "1", "--out", str(alone)).returncode == 0
     first = json.loads(alone.read_text())["per_episode"][0]
     assert {**rows[1], "wall_s": 0} == {**first, "wall_s": 0}
+    # --retrieve-only: the retrieve alone, its own step budget, no chain after it (no funnel keys).
+    only = tmp_path / "only.json"
+    assert retrieve_chain("--retrieve-only", "--retrieve-steps", "30", "--episodes", "1", "--out",
+                          str(only)).returncode == 0
+    record = json.loads(only.read_text())["per_episode"][0]
+    assert {**record, "wall_s": 0} == {**first, "wall_s": 0} and "placed" not in record
     bad = retrieve_chain("--episodes", "5-2")
     assert bad.returncode == 2 and "--episodes must be A-B" in bad.stderr and "Traceback" not in bad.stderr
 
