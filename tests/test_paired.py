@@ -86,8 +86,25 @@ def test_main_command_records_pair_by_seed_and_manual_step(tmp_path):
     assert len(manual) == 48 and sum(manual[(seed, 1, 0)] for seed in range(32) if (seed, 1, 0) in manual) == 7
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"per_block": [{"seed": 0}]}))
-    with pytest.raises(ValueError, match="not a main_command_seeds.py record"):
+    with pytest.raises(ValueError, match="not a main_command_seeds.py or seqdex rollout record"):
         load_outcomes(bad)
     result = subprocess.run([sys.executable, str(SCRIPT), "--row", f"a={bad}", "--row", f"b={bad}", "--pair", "a:b"],
                             capture_output=True, text=True)
-    assert result.returncode == 2 and "not a main_command_seeds.py record" in result.stderr
+    assert result.returncode == 2 and "not a main_command_seeds.py or seqdex rollout record" in result.stderr
+
+
+def test_rollout_records_pair_by_seed_and_several_files_make_one_row(tmp_path):
+    """``seqdex rollout --out`` records are rows (a sub-task alone, paired by episode seed); files joined by commas
+    make one row, as a row of three 100-episode seeds."""
+    def record(path, seed, successes):
+        episodes = [{"seed": seed + i, "success": bool(s), "return": 0.0, "length": 150}
+                    for i, s in enumerate(successes)]
+        path.write_text(json.dumps({"task": "tool_grasp", "seed": seed, "per_episode": episodes}))
+        return str(path)
+
+    first = ",".join([record(tmp_path / "a0.json", 0, [1, 1, 0]), record(tmp_path / "a1.json", 100, [1, 1])])
+    second = ",".join([record(tmp_path / "b0.json", 0, [0, 1, 0]), record(tmp_path / "b1.json", 100, [0, 0])])
+    outcomes = load_outcomes(first)
+    assert outcomes == {(0, 0, 0): True, (1, 0, 0): True, (2, 0, 0): False, (100, 0, 0): True, (101, 0, 0): True}
+    c = compare("pinch", outcomes, "fist", load_outcomes(second))
+    assert (c.episodes, c.first_successes, c.second_successes, c.only_first, c.only_second) == (5, 4, 1, 3, 0)

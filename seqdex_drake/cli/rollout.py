@@ -42,6 +42,7 @@ from seqdex_drake.scenario import LoadScenario, ScenarioError
 from seqdex_drake.tasks.base import ResetError
 from seqdex_drake.tasks.blocks_common import RESET_REGIONS
 from seqdex_drake.tasks.registry import task_names
+from seqdex_drake.tasks.residual import RESIDUAL_BASES
 from seqdex_drake.tasks.run_config import PRESETS, observation_spec, run_preset, run_residual, task_config
 
 #: Episodes rolled out when ``--episodes`` is not given (with and without ``--test``).
@@ -69,6 +70,9 @@ def add_parser(commands) -> None:
     parser.add_argument("--zero-action", action="store_true",
                         help="roll out the zero action instead of a checkpoint: a reference, and for a task variant "
                              "with a residual base (TaskConfig.residual) its script alone (default preset: budget)")
+    parser.add_argument("--base", metavar="NAME",
+                        help="with --zero-action: run this residual base alone instead of the task variant's, e.g. "
+                             "tool_pinch_script on tool_grasp (the bases: seqdex_drake.tasks.residual.RESIDUAL_BASES)")
     parser.add_argument("--initial-states", metavar="BUFFER",
                         help="start episode i from this terminal buffer's successful hand-off (seed + i) mod N "
                              "(seqdex collect --task <previous sub-task>), as forward initialization does")
@@ -135,6 +139,16 @@ def _on_scene(config, scene: str | None, region: str | None = None):
     return config if scene is None else dataclasses.replace(config, scenario=scene)
 
 
+def _with_base(config, base: str | None):
+    """``config`` with residual base ``base`` (its hand actions too: a base sends whole actions), checked by name;
+    ``config`` itself for None."""
+    if base is None:
+        return config
+    if base not in RESIDUAL_BASES:
+        raise CliError(f"--base {base!r}: unknown residual base; valid bases: {', '.join(RESIDUAL_BASES)}")
+    return dataclasses.replace(config, residual=base, hand_actions=False)
+
+
 def run(args) -> int:
     """Runs ``seqdex rollout`` with the parsed ``args``; returns the exit code."""
     episodes = args.episodes if args.episodes is not None else (TEST_EPISODES if args.test else DEFAULT_EPISODES)
@@ -157,11 +171,15 @@ def run(args) -> int:
         preset = args.preset or "budget"
         config = with_objects(_on_scene(task_config(args.task, args.test, preset), scene, args.reset_region),
                               args.task, args.objects, starts)
+        config = _with_base(config, args.base)
         env = make_env(args.task, config)
         zeros = np.zeros(env.action_space.shape, dtype=np.float32)
         policy, checkpoint = (lambda observation: zeros), "the zero action" + (
             f" (the {config.residual} base alone)" if config.residual else "")
     else:
+        if args.base:
+            raise CliError(f"--base {args.base} runs a residual base alone: add --zero-action (a checkpoint brings "
+                           f"the base it was trained on)")
         preset = args.preset or run_preset(checkpoint)
         config = with_objects(_on_scene(task_config(args.task, args.test, preset,
                                                     residual=run_residual(checkpoint)), scene, args.reset_region),

@@ -23,15 +23,22 @@ MAIN_EXPERIMENT = "main"
 def load_outcomes(row: str | Path) -> dict[tuple[int, int, int], bool]:
     """``{(seed, object, episode): success}`` of the main experiment's records in ``row`` (an evaluation output
     directory, or its ``episodes.jsonl``), or ``{(seed, manual step, 0): placed}`` of a main-command record (a
-    ``.json`` file written by ``experiments/main_command_seeds.py``). Raises ValueError for a row without records
-    or with a record that lacks a field, and FileNotFoundError for a missing file, each naming the file."""
+    ``.json`` file written by ``experiments/main_command_seeds.py``), or ``{(seed, 0, 0): success}`` of ``seqdex
+    rollout --out`` records (``.json``; episode i of a record played seed + i). Several files joined by commas make
+    one row. Raises ValueError for a row without records or with a record that lacks a field, and FileNotFoundError
+    for a missing file, each naming the file."""
+    if isinstance(row, str) and "," in row:
+        merged = {}
+        for part in row.split(","):
+            merged.update(load_outcomes(part))
+        return merged
     path = Path(row)
     path = path / "episodes.jsonl" if path.is_dir() else path
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file; give a seqdex evaluate output directory (--out) or a "
                                 f"main_command_seeds.py record (--out)")
     if path.suffix == ".json":
-        return _main_command_outcomes(path)
+        return _json_outcomes(path)
     outcomes = {}
     for number, line in enumerate(path.read_text().splitlines(), start=1):
         if not line.strip():
@@ -48,13 +55,17 @@ def load_outcomes(row: str | Path) -> dict[tuple[int, int, int], bool]:
     return outcomes
 
 
-def _main_command_outcomes(path: Path) -> dict[tuple[int, int, int], bool]:
-    """``{(seed, manual step, 0): placed}`` of a ``main_command_seeds.py`` record."""
+def _json_outcomes(path: Path) -> dict[tuple[int, int, int], bool]:
+    """``{(seed, manual step, 0): placed}`` of a ``main_command_seeds.py`` record, or ``{(seed, 0, 0): success}``
+    of a ``seqdex rollout`` record (its ``per_episode``)."""
     try:
-        rows = json.loads(path.read_text())["per_block"]
+        record = json.loads(path.read_text())
+        if "per_episode" in record:
+            return {(int(episode["seed"]), 0, 0): bool(episode["success"]) for episode in record["per_episode"]}
+        rows = record["per_block"]
         outcomes = {(int(row["seed"]), int(row["step"]), 0): bool(row["placed"]) for row in rows}
     except (ValueError, KeyError, TypeError) as error:
-        raise ValueError(f"{path}: not a main_command_seeds.py record ({error!r})") from error
+        raise ValueError(f"{path}: not a main_command_seeds.py or seqdex rollout record ({error!r})") from error
     if not outcomes:
         raise ValueError(f"{path} holds no block")
     return outcomes

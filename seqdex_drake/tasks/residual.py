@@ -34,6 +34,7 @@ from seqdex_drake.tasks.scripted.block_orient_script import ScriptedBlockOrient
 from seqdex_drake.tasks.scripted.block_retrieve_script import ScriptedBlockRetrieve
 from seqdex_drake.tasks.scripted.block_search_script import ScriptedBlockSearch
 from seqdex_drake.tasks.scripted.tool_grasp_script import ScriptedToolGrasp
+from seqdex_drake.tasks.scripted.tool_pinch_script import ScriptedToolPinch
 from seqdex_drake.tasks.scripted.tool_reorient_gait import FingerGait
 
 
@@ -46,6 +47,10 @@ class BaseController(Protocol):
 
 def _tool_grasp_script() -> BaseController:
     return ScriptedToolGrasp()
+
+
+def _tool_pinch_script() -> BaseController:
+    return ScriptedToolPinch()
 
 
 def _block_grasp_script() -> BaseController:
@@ -75,6 +80,7 @@ def _tool_reorient_gait() -> BaseController:
 #: Name -> factory of the scripted bases a ``TaskConfig.residual`` may name.
 RESIDUAL_BASES: dict[str, Callable[[], BaseController]] = {
     "tool_grasp_script": _tool_grasp_script,  # The scripted hammer pickup (tasks/scripted/tool_grasp_script.py).
+    "tool_pinch_script": _tool_pinch_script,  # The yaw-planned hammer pinch (tasks/scripted/tool_pinch_script.py).
     "tool_reorient_gait": _tool_reorient_gait,  # A searched open-loop finger gait (scripted/tool_reorient_gait.py).
     "block_grasp_script": _block_grasp_script,  # The scripted block pickup (tasks/scripted/block_grasp_script.py).
     "block_orient_script": _block_orient_script,  # The scripted fingertip roll (tasks/scripted/block_orient_script.py).

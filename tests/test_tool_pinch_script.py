@@ -1,0 +1,83 @@
+"""The yaw-planned hammer pinch (``tasks/scripted/tool_pinch_script.py``): its hand shapes put the tips where
+planned, it is a function of (observation, step), and in real simulations it lifts the hammer where the fist
+cannot (a positive yaw, the head toward the thumb) as well as where the fist can."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from seqdex_drake.cli.main import main
+from seqdex_drake.envs.subtask_env import make_env
+from seqdex_drake.robots.allegro import FINGERTIP_FRAMES
+from seqdex_drake.tasks.registry import budget_config
+from seqdex_drake.tasks.scripted.tool_pinch_script import PINCH_DIGITS, R_PalmW, ScriptedToolPinch
+
+
+@pytest.fixture(scope="module")
+def pinch():
+    return ScriptedToolPinch()
+
+
+@pytest.fixture(scope="module")
+def env():
+    return make_env("tool_grasp", dataclasses.replace(budget_config("tool_grasp"), residual="tool_pinch_script"))
+
+
+def _tips(pinch, q):
+    plant = pinch._plant
+    context = plant.CreateDefaultContext()
+    plant.SetPositions(context, q)
+    return np.array([plant.CalcPointsPositions(context, plant.GetFrameByName(FINGERTIP_FRAMES[digit]), np.zeros(3),
+                                               plant.world_frame()).ravel() for digit in PINCH_DIGITS])
+
+
+@pytest.mark.parametrize("yaw_key", [-60, 0, 30])
+def test_the_contact_shape_puts_the_tips_on_the_planned_points(pinch, yaw_key):
+    shapes = pinch.pinch_shapes(yaw_key)
+    assert len(shapes) == len(pinch.gaps) + 1
+    np.testing.assert_allclose(_tips(pinch, shapes[-2]), pinch.tip_targets(yaw_key / 100, 0.0), atol=1e-3)
+    # The squeeze aims past contact, across the handle: the index and middle tips toward the thumb, the thumb
+    # toward them.
+    yaw = yaw_key / 100
+    n_Palm = R_PalmW @ [np.cos(yaw), np.sin(yaw), 0.0]
+    across = (_tips(pinch, shapes[-1]) - _tips(pinch, shapes[-2])) @ n_Palm
+    assert across[0] < -1e-3 and across[1] < -1e-3 and across[2] > 1e-3
+
+
+def test_at_large_positive_yaw_the_index_abduction_stays_within_its_limit(pinch):
+    for shape in pinch.pinch_shapes(60):
+        assert abs(shape[0]) <= pinch.abduction_limit + 1e-6
+    assert abs(pinch.pinch_shapes(20)[-2][0]) > 0.0  # Below the threshold the abduction is free.
+
+
+def test_the_action_is_a_function_of_observation_and_step(env):
+    observation, _ = env.reset(seed=3)
+    fresh, cached = ScriptedToolPinch(), ScriptedToolPinch()
+    for step in (0, 20, 40):
+        cached.act(observation, step)
+    for step in (0, 20, 40, 55, 70, 100):
+        np.testing.assert_array_equal(fresh.act(observation, step), cached.act(observation, step))
+        assert np.all(np.abs(fresh.act(observation, step)) <= 1.0)
+    np.testing.assert_array_equal(fresh.act(observation, 100)[16:], 0.0)  # Held still after the lift.
+
+
+@pytest.mark.parametrize("seed", [0, 2, 10])  # Yaw +0.22 (the fist fails), -0.37, +0.72 (abduction held).
+def test_the_pinch_lifts_the_hammer_without_turning_it(env, seed):
+    env.reset(seed=seed)
+    for _ in range(env.config.episode_length):
+        _, _, terminated, truncated, info = env.step(np.zeros(env.action_space.shape))
+        if terminated or truncated:
+            break
+    rise, turned = env.task._lift_and_turn(env)
+    assert info["success"] and rise > 0.1 and turned < 0.3
+
+
+def test_rollout_runs_a_named_base_alone_and_refuses_it_with_a_checkpoint(tmp_path, capsys):
+    assert main(["rollout", "--task", "tool_grasp", "--zero-action", "--base", "tool_pinch_script", "--test",
+                 "--episodes", "1"]) == 0
+    assert "the tool_pinch_script base alone" in capsys.readouterr().out
+    assert main(["rollout", "--task", "tool_grasp", "--zero-action", "--base", "fist", "--test"]) == 2
+    assert "unknown residual base; valid bases: tool_grasp_script, tool_pinch_script" in capsys.readouterr().err
+    assert main(["rollout", "--task", "tool_grasp", "--base", "tool_pinch_script", "--checkpoint", "x.pt"]) == 2
+    assert "add --zero-action" in capsys.readouterr().err
