@@ -81,3 +81,18 @@ def test_rollout_runs_a_named_base_alone_and_refuses_it_with_a_checkpoint(tmp_pa
     assert "unknown residual base; valid bases: tool_grasp_script, tool_pinch_script" in capsys.readouterr().err
     assert main(["rollout", "--task", "tool_grasp", "--base", "tool_pinch_script", "--checkpoint", "x.pt"]) == 2
     assert "add --zero-action" in capsys.readouterr().err
+
+
+def test_collect_writes_the_hand_offs_of_a_base_alone(tmp_path, capsys):
+    """``seqdex collect --zero-action --base tool_pinch_script``: the pinch's successful terminal states become tool
+    Reorient's start buffer (forward initialization from a scripted stage)."""
+    from seqdex_drake.chaining.terminal_buffer import TerminalBuffer
+
+    out = tmp_path / "pinch.npz"
+    assert main(["collect", "--task", "tool_grasp", "--zero-action", "--base", "tool_pinch_script", "--episodes", "2",
+                 "--seed", "1", "--out", str(out)]) == 0
+    assert "2 successes out of 2 tool_grasp episodes" in capsys.readouterr().out
+    buffer = TerminalBuffer.load(out, expected_task="tool_reorient")
+    assert len(buffer) == 2 and all(buffer.successes)
+    assert main(["collect", "--task", "tool_grasp", "--base", "tool_pinch_script", "--out", str(out)]) == 2
+    assert "add --zero-action" in capsys.readouterr().err

@@ -11,8 +11,11 @@ simulator worker died); 128 + N a training stopped by signal N after saving its 
 SIGTERM).
 """
 
+import dataclasses
+
 from seqdex_drake.chaining.chain import ChainNames, LoadChain
 from seqdex_drake.tasks import run_config
+from seqdex_drake.tasks.residual import RESIDUAL_BASES
 from seqdex_drake.user_input import MAX_SEED, check_creatable, check_seed  # noqa: F401 (the subcommands' checks)
 from seqdex_drake.user_input import InputError as CliError
 
@@ -58,3 +61,13 @@ def with_objects(config, task: str, objects: list[str] | None, starts=None):
         return run_config.with_objects(config, task, objects)
     except ValueError as error:
         raise CliError(f"--objects: {error}") from error
+
+
+def with_base(config, base: str | None):
+    """``config`` with residual base ``base`` (its hand actions too: a base sends whole actions), checked by name;
+    ``config`` itself for None."""
+    if base is None:
+        return config
+    if base not in RESIDUAL_BASES:
+        raise CliError(f"--base {base!r}: unknown residual base; valid bases: {', '.join(RESIDUAL_BASES)}")
+    return dataclasses.replace(config, residual=base, hand_actions=False)

@@ -19,7 +19,7 @@ import torch
 
 from seqdex_drake.chaining.feasibility import pad_history
 from seqdex_drake.chaining.terminal_buffer import HISTORY, TerminalBuffer
-from seqdex_drake.cli import NEXT_TASK, CliError, check_creatable, check_seed, with_objects
+from seqdex_drake.cli import NEXT_TASK, CliError, check_creatable, check_seed, with_base, with_objects
 from seqdex_drake.envs.subtask_env import make_env
 from seqdex_drake.rl.checkpoint import CheckpointError
 from seqdex_drake.rl.ppo import PPO
@@ -56,6 +56,7 @@ def _open_buffer(args, out: Path, target: str, scenario: str, spec):
 
 def rollout(env, ppo, seed: int) -> tuple[np.ndarray, float, bool]:
     """One deterministic episode from ``env.reset(seed=seed)``: its observations (T+1, d), return, success.
+    ``ppo`` None sends the zero action (a residual variant's script alone).
 
     The env is left in the episode's final state.
     """
@@ -63,8 +64,11 @@ def rollout(env, ppo, seed: int) -> tuple[np.ndarray, float, bool]:
     observation, info = env.reset(seed=seed)
     observations, episode_return = [observation], 0.0
     while True:
-        obs = torch.as_tensor(observation, dtype=torch.float32, device=ppo.device)[None]
-        action = np.clip(ppo.act(obs, deterministic=True)[0][0].cpu().numpy(), low, high)
+        if ppo is None:
+            action = np.zeros(env.action_space.shape, dtype=np.float32)
+        else:
+            obs = torch.as_tensor(observation, dtype=torch.float32, device=ppo.device)[None]
+            action = np.clip(ppo.act(obs, deterministic=True)[0][0].cpu().numpy(), low, high)
         observation, reward, terminated, truncated, info = env.step(action)
         observations.append(observation)
         episode_return += reward
@@ -86,6 +90,18 @@ def run(args) -> int:
         raise CliError(f"--episodes must be >= 1, got {episodes}")
     check_seed(args.seed)
     check_creatable(out, "--out")  # Before the rollouts, not after them.
+    if args.zero_action:
+        if args.checkpoint:
+            raise CliError("--zero-action rolls out no policy; drop --checkpoint")
+        preset = args.preset or "budget"
+        config = with_base(with_objects(task_config(args.task, args.test, preset), args.task, args.objects),
+                           args.base)
+        env = make_env(args.task, config)
+        spec = observation_spec(args.task, env.observation_space.shape[0])
+        return _collect(args, None, env, config, spec, out, target, episodes)
+    if args.base:
+        raise CliError(f"--base {args.base} runs a residual base alone: add --zero-action (a checkpoint brings the "
+                       f"base it was trained on)")
     ppo = _load_policy(checkpoint)
 
     # The variant the policy was trained on.
@@ -102,9 +118,14 @@ def run(args) -> int:
     if ppo.obs_spec is not None and ppo.obs_spec.get("digest") != spec.digest:
         raise CliError(f"checkpoint {checkpoint} is a policy for '{ppo.obs_spec.get('description')}', but "
                        f"the {args.task} env gives '{spec.description}': another task's run?")
+    ppo.model.eval()
+    return _collect(args, ppo, env, config, spec, out, target, episodes)
+
+
+def _collect(args, ppo, env, config, spec, out: Path, target: str, episodes: int) -> int:
+    """Rolls out ``episodes`` episodes of ``ppo`` (None: the zero action) and writes ``target``'s buffer."""
     buffer = _open_buffer(args, out, target, config.scenario, spec)
     before = len(buffer)
-    ppo.model.eval()
     successes = 0
     for episode in range(episodes):
         observations, episode_return, success = rollout(env, ppo, args.seed + episode)

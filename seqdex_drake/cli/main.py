@@ -89,6 +89,11 @@ def build_parser() -> argparse.ArgumentParser:
                          help="the task variant the policy was trained on (default: the preset in the run's "
                               "config.json beside the checkpoint, else paper); e.g. budget for a shipped stage "
                               "checkpoint (checkpoints/<family>/stages/<task>/best.pt)")
+    collect.add_argument("--zero-action", action="store_true",
+                         help="roll out no policy: the zero action, i.e. a residual variant's script alone (default "
+                              "preset: budget), e.g. the hand-offs of a scripted tool Grasp")
+    collect.add_argument("--base", metavar="NAME",
+                         help="with --zero-action: this residual base instead of the variant's (seqdex rollout --base)")
 
     pipeline.add_parsers(commands)
     evaluate.add_parser(commands)

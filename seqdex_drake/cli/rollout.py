@@ -31,7 +31,7 @@ import numpy as np
 from tqdm import tqdm
 
 from seqdex_drake.atomic import atomic_write
-from seqdex_drake.cli import OBJECTS_HELP, CliError, check_creatable, check_seed, with_objects
+from seqdex_drake.cli import OBJECTS_HELP, CliError, check_creatable, check_seed, with_base, with_objects
 from seqdex_drake.cli.train import load_initial_states
 from seqdex_drake.env_state import EnvState
 from seqdex_drake.envs.subtask_env import make_env
@@ -42,7 +42,6 @@ from seqdex_drake.scenario import LoadScenario, ScenarioError
 from seqdex_drake.tasks.base import ResetError
 from seqdex_drake.tasks.blocks_common import RESET_REGIONS
 from seqdex_drake.tasks.registry import task_names
-from seqdex_drake.tasks.residual import RESIDUAL_BASES
 from seqdex_drake.tasks.run_config import PRESETS, observation_spec, run_preset, run_residual, task_config
 
 #: Episodes rolled out when ``--episodes`` is not given (with and without ``--test``).
@@ -139,16 +138,6 @@ def _on_scene(config, scene: str | None, region: str | None = None):
     return config if scene is None else dataclasses.replace(config, scenario=scene)
 
 
-def _with_base(config, base: str | None):
-    """``config`` with residual base ``base`` (its hand actions too: a base sends whole actions), checked by name;
-    ``config`` itself for None."""
-    if base is None:
-        return config
-    if base not in RESIDUAL_BASES:
-        raise CliError(f"--base {base!r}: unknown residual base; valid bases: {', '.join(RESIDUAL_BASES)}")
-    return dataclasses.replace(config, residual=base, hand_actions=False)
-
-
 def run(args) -> int:
     """Runs ``seqdex rollout`` with the parsed ``args``; returns the exit code."""
     episodes = args.episodes if args.episodes is not None else (TEST_EPISODES if args.test else DEFAULT_EPISODES)
@@ -171,7 +160,7 @@ def run(args) -> int:
         preset = args.preset or "budget"
         config = with_objects(_on_scene(task_config(args.task, args.test, preset), scene, args.reset_region),
                               args.task, args.objects, starts)
-        config = _with_base(config, args.base)
+        config = with_base(config, args.base)
         env = make_env(args.task, config)
         zeros = np.zeros(env.action_space.shape, dtype=np.float32)
         policy, checkpoint = (lambda observation: zeros), "the zero action" + (
