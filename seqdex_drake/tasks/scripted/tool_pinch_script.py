@@ -1,4 +1,4 @@
-"""A scripted hammer pickup by a thumb-opposed pinch planned from the hammer's observed yaw, acting only through the
+"""A scripted tool pickup by a thumb-opposed pinch planned from the tool's observed yaw, acting only through the
 env's 19-dim action space: the alternative to the fist of ``tasks/scripted/tool_grasp_script.py`` (residual base
 ``tool_pinch_script``; the shipped chain still runs the fist, whose hand-offs tool Reorient's gait was searched on).
 
@@ -9,11 +9,12 @@ Why a pinch. The fist closes its fingers toward the wrist whatever the hammer's 
 the palm (yaw -> 0) and fails the 0.3 rad test for every positive yaw. The pinch instead presses across the handle
 along its own normal: index and middle tips on the handle's far side, ``spread`` either way along it, the thumb
 opposite on the near side. The wrist only translates, so the fingers do the turning: every tip position comes from
-inverse kinematics on the hand alone for the observed yaw (:func:`pinch_shapes`, cached per 0.01 rad).
+inverse kinematics on the hand alone for the observed yaw (:meth:`ScriptedToolPinch.pinch_shapes`, per 0.01 rad).
 
-* Where. On the handle at the hammer's centre of mass along it (tool y ``ya`` 0.125; the handle is 18 x 23 mm
-  there), so the lifted hammer hangs as it lay. The palm point ``p_PalmA`` (6.5 cm below the palm, 4.5 cm to its
-  index side) is put there: the 14 cm head then stands beyond the index finger, never under the hand.
+* Where. On the handle at the tool's centre of mass along it (``TOOL_GRIPS``: the hammer's at tool y 0.125, where
+  the handle is 18 x 23 mm), so the lifted hammer hangs as it lay. The palm point ``p_PalmA`` (6.5 cm below the
+  palm, 4.5 cm to its index side) is put there: the 14 cm head then stands beyond the index finger, never under
+  the hand.
 * Contact height. The tips sit ``phi`` (0.7 rad) below the handle's equator, on both sides: a cradle, whose
   contact normals carry the weight, where a pinch at the equator slid off the handle in the lift.
 * Force. The squeeze is commanded in force, as ``tasks/scripted/grasping.SqueezeTargets``: the last shape's
@@ -31,11 +32,6 @@ Measured (``seqdex rollout --task tool_grasp --zero-action --base tool_pinch_scr
 5000 the hammer 289 / 300 (the fist 132, the shipped fist with its residual 134), the unseen spatula 300 / 300 (the
 fist 0), the ladle 0 / 100 (lifted, but its flat inclined grip swings past the 0.3 rad test). Tool Reorient's gait
 was searched on the fist's hand-offs and drops a pinched hammer: the chain still runs the fist.
-
-Tried while tuning (seeds 0-29): contacts at the equator (the tips slid up the handle in the lift, 0 / 10); the
-grasp point 1.3 cm off the centre of mass (the hammer swung about the pinch, 0.5-0.9 rad); a cradle of three
-fingers placed on their own planes (6 / 30: the jaw off the centre of mass); squeeze in joint angles rather than
-in force (the fingers out-pushed the thumb and rolled the hammer over); a stiffer hand (kp 20; no better).
 """
 
 from __future__ import annotations
