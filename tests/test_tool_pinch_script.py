@@ -81,6 +81,10 @@ def test_rollout_runs_a_named_base_alone_and_refuses_it_with_a_checkpoint(tmp_pa
     assert "unknown residual base; valid bases: tool_grasp_script, tool_pinch_script" in capsys.readouterr().err
     assert main(["rollout", "--task", "tool_grasp", "--base", "tool_pinch_script", "--checkpoint", "x.pt"]) == 2
     assert "add --zero-action" in capsys.readouterr().err
+    assert main(["rollout", "--task", "grasp", "--zero-action", "--base", "tool_pinch_script", "--test"]) == 2
+    err = capsys.readouterr().err
+    assert "acts in the tool_grasp env, not grasp's; bases for grasp: block_grasp_script" in err
+    assert "Traceback" not in err
 
 
 def test_collect_writes_the_hand_offs_of_a_base_alone(tmp_path, capsys):
@@ -96,3 +100,10 @@ def test_collect_writes_the_hand_offs_of_a_base_alone(tmp_path, capsys):
     assert len(buffer) == 2 and all(buffer.successes)
     assert main(["collect", "--task", "tool_grasp", "--base", "tool_pinch_script", "--out", str(out)]) == 2
     assert "add --zero-action" in capsys.readouterr().err
+
+
+def test_every_residual_base_names_the_task_it_acts_in():
+    from seqdex_drake.tasks.registry import task_names
+    from seqdex_drake.tasks.residual import BASE_TASKS, RESIDUAL_BASES
+
+    assert set(BASE_TASKS) == set(RESIDUAL_BASES) and set(BASE_TASKS.values()) <= set(task_names())

@@ -15,7 +15,7 @@ import dataclasses
 
 from seqdex_drake.chaining.chain import ChainNames, LoadChain
 from seqdex_drake.tasks import run_config
-from seqdex_drake.tasks.residual import RESIDUAL_BASES
+from seqdex_drake.tasks.residual import BASE_TASKS, RESIDUAL_BASES
 from seqdex_drake.user_input import MAX_SEED, check_creatable, check_seed  # noqa: F401 (the subcommands' checks)
 from seqdex_drake.user_input import InputError as CliError
 
@@ -63,11 +63,15 @@ def with_objects(config, task: str, objects: list[str] | None, starts=None):
         raise CliError(f"--objects: {error}") from error
 
 
-def with_base(config, base: str | None):
-    """``config`` with residual base ``base`` (its hand actions too: a base sends whole actions), checked by name;
-    ``config`` itself for None."""
+def with_base(config, task: str, base: str | None):
+    """``config`` (sub-task ``task``'s) with residual base ``base`` (its hand actions too: a base sends whole
+    actions), checked by name and task; ``config`` itself for None."""
     if base is None:
         return config
     if base not in RESIDUAL_BASES:
         raise CliError(f"--base {base!r}: unknown residual base; valid bases: {', '.join(RESIDUAL_BASES)}")
+    if BASE_TASKS[base] != task:
+        fitting = [name for name, owner in BASE_TASKS.items() if owner == task]
+        raise CliError(f"--base {base} acts in the {BASE_TASKS[base]} env, not {task}'s; bases for {task}: "
+                       f"{', '.join(fitting) or 'none'}")
     return dataclasses.replace(config, residual=base, hand_actions=False)

@@ -95,7 +95,7 @@ def run(args) -> int:
             raise CliError("--zero-action rolls out no policy; drop --checkpoint")
         preset = args.preset or "budget"
         config = with_base(with_objects(task_config(args.task, args.test, preset), args.task, args.objects),
-                           args.base)
+                           args.task, args.base)
         env = make_env(args.task, config)
         spec = observation_spec(args.task, env.observation_space.shape[0])
         return _collect(args, None, env, config, spec, out, target, episodes)

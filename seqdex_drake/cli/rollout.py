@@ -160,7 +160,7 @@ def run(args) -> int:
         preset = args.preset or "budget"
         config = with_objects(_on_scene(task_config(args.task, args.test, preset), scene, args.reset_region),
                               args.task, args.objects, starts)
-        config = with_base(config, args.base)
+        config = with_base(config, args.task, args.base)
         env = make_env(args.task, config)
         zeros = np.zeros(env.action_space.shape, dtype=np.float32)
         policy, checkpoint = (lambda observation: zeros), "the zero action" + (

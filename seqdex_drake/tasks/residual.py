@@ -89,6 +89,13 @@ RESIDUAL_BASES: dict[str, Callable[[], BaseController]] = {
     "block_retrieve_script": _block_retrieve_script,  # Out of the pile (tasks/scripted/block_retrieve_script.py).
 }
 
+#: Base name -> the sub-task whose env it acts in (its observation layout and objects).
+BASE_TASKS: dict[str, str] = {
+    "tool_grasp_script": "tool_grasp", "tool_pinch_script": "tool_grasp", "tool_reorient_gait": "tool_reorient",
+    "block_grasp_script": "grasp", "block_orient_script": "orient", "block_search_script": "search",
+    "block_insert_script": "insert", "block_retrieve_script": "retrieve",
+}
+
 
 def make_base(name: str) -> BaseController:
     """The base controller ``name``; a ValueError lists the valid names."""
