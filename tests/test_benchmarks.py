@@ -71,8 +71,21 @@ def test_chain_runtime_reports_the_tick_its_memory_floor_and_the_real_time_facto
     # The shipped chain's tick when the repository ships one (checkpoints/tool_positioning), else null.
     shipped = (Path(__file__).resolve().parents[1] / "checkpoints" / "tool_positioning" / "manifest.json").is_file()
     assert (result["tick_ms_shipped"] > 0) if shipped else result["tick_ms_shipped"] is None
+    assert (result["tick_ms_shipped_every_tick"] > 0) if shipped else result["tick_ms_shipped_every_tick"] is None
     assert result["policy_weights_mb"] == pytest.approx(4 * (159 * 1024 + 1024 * 1024 + 1024 * 512 + 512 * 19
                                                              + 1024 + 1024 + 512 + 19) / 1e6, rel=1e-3)
+
+
+def test_main_command_realtime_times_both_shipped_chains_as_the_main_command_runs_them(benchmark_run):
+    result = _result(benchmark_run, "main_command_realtime")
+    for family in ("building_blocks", "tool_positioning"):
+        runs = result[family]
+        for run in filter(None, (runs["headless"], runs["meshcat"])):  # Meshcat: null where it cannot start.
+            assert run["simulated_s"] == pytest.approx(result["seconds"], abs=1e-6)  # The chain ran the whole span.
+            assert run["wall_s"] > 0 and run["realtime_factor"] == pytest.approx(run["simulated_s"] / run["wall_s"],
+                                                                                 rel=1e-2)
+            assert run["checkpoints"] == "shipped" and run["last_stage"] == 0  # Still in its first stage.
+        assert runs["realtime_factor"] == runs["headless"]["realtime_factor"]
 
 
 def test_osc_solve_time_reports_the_solves(benchmark_run):

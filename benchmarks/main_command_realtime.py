@@ -1,0 +1,104 @@
+"""Real-time factor of the main command: the shipped chains as ``seqdex simulate`` (``scripts/simulate_chain.py``)
+runs them, with Meshcat and without.
+
+For each task family the chain is built as the main command builds it (``ChainRunner`` with the shipped
+checkpoints, the default seed 0, the switcher's defaults) and its first object started: Building Blocks the
+default manual's first block (Search in the 72-block pile, then the retrieve, Orient, Grasp, Insert), Tool
+Positioning the hammer. The chain then runs ``--seconds`` simulated seconds as fast as it can (no target real-time
+rate; the first ``WARMUP`` seconds off the clock) or until its episode ends, and ``realtime_factor`` = simulated /
+wall seconds; ``*_cpu`` per process-CPU second (on a shared machine wall time includes waiting for a core).
+With Meshcat the run publishes to a fresh local Meshcat server as the main command does (no browser attached).
+Goal (issues 38 and 39, reported, not asserted): real-time factor with Meshcat >= 1.0 for each family.
+``load_average`` is the 1-minute load average when the script starts: time it on an otherwise idle machine.
+
+    python benchmarks/main_command_realtime.py [--seconds 20] [--families building_blocks tool_positioning]
+    python benchmarks/main_command_realtime.py --test          # 0.3 simulated seconds each, for CI
+
+The last line printed is one JSON object.
+"""
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from seqdex_drake.evaluation.runner import ChainRunner, RunConfig
+from seqdex_drake.manual import LoadManual, goal_vector
+
+ROOT = Path(__file__).resolve().parents[1]
+FAMILIES = ("building_blocks", "tool_positioning")
+#: Simulated seconds run before the clock starts (first-call allocations, Meshcat's first scene upload).
+WARMUP = 0.1
+#: The main command's default manual (``seqdex simulate --manual``).
+MANUAL = "small_wall"
+
+
+def start_first_object(runner: ChainRunner, family: str, seed: int) -> str:
+    """Starts the object the main command starts first; returns its name."""
+    if family == "tool_positioning":
+        return runner.start_tool(0, np.random.default_rng(seed))
+    step = LoadManual(MANUAL).steps[0]
+    return runner.start_block(step.block_type, goal_vector(step))
+
+
+def time_family(family: str, seconds: float, meshcat, seed: int = 0) -> dict:
+    """Wall and CPU seconds of ``seconds`` simulated seconds of ``family``'s shipped chain (``meshcat`` or None)."""
+    checkpoints = ROOT / "checkpoints" / family
+    run_dir = str(checkpoints) if (checkpoints / "manifest.json").is_file() else None
+    runner = ChainRunner(RunConfig(family=family, run_dir=run_dir, seed=seed), meshcat=meshcat)
+    start_first_object(runner, family, seed)
+    t0 = runner.context.get_time()
+    clock = {}
+
+    def on_tick(r) -> bool:
+        elapsed = r.context.get_time() - t0
+        if "wall" not in clock and elapsed >= WARMUP - 1e-9:
+            clock["sim"], clock["wall"], clock["cpu"] = r.context.get_time(), time.perf_counter(), time.process_time()
+        return elapsed < WARMUP + seconds - 1e-9
+
+    outcome = runner.run(runner.episode_limit(), on_tick=on_tick)
+    simulated = runner.context.get_time() - clock["sim"]
+    wall, cpu = time.perf_counter() - clock["wall"], time.process_time() - clock["cpu"]
+    return {"simulated_s": round(simulated, 3), "wall_s": round(wall, 3), "cpu_s": round(cpu, 3),
+            "realtime_factor": round(simulated / wall, 4), "realtime_factor_cpu": round(simulated / cpu, 4),
+            "last_stage": outcome.last_stage, "checkpoints": "shipped" if run_dir else "untrained"}
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=20.0,
+                        help="simulated seconds timed per run (default 20, as the issue's 78 s wall figure)")
+    parser.add_argument("--families", nargs="+", choices=FAMILIES, default=list(FAMILIES))
+    parser.add_argument("--test", action="store_true", help="0.3 simulated seconds per run (no timing meaning)")
+    args = parser.parse_args()
+    if not args.seconds > 0:
+        parser.error(f"--seconds must be > 0, got {args.seconds}")
+    seconds = 0.3 if args.test else args.seconds
+    from pydrake.geometry import Meshcat
+
+    results = {"load_average": round(os.getloadavg()[0], 2), "seconds": seconds}
+    try:
+        meshcat = Meshcat()  # One server, as the main command starts one; each run deletes the previous scene.
+    except RuntimeError as error:
+        print(f"Meshcat did not start ({error}); the Meshcat figures are null", flush=True)
+        meshcat = None
+    for family in args.families:
+        headless = time_family(family, seconds, None)
+        with_meshcat = None
+        if meshcat is not None:
+            meshcat.Delete()
+            with_meshcat = time_family(family, seconds, meshcat)
+        results[family] = {"headless": headless, "meshcat": with_meshcat,
+                           "realtime_factor": headless["realtime_factor"],
+                           "realtime_factor_meshcat": with_meshcat and with_meshcat["realtime_factor"]}
+        shown = "no Meshcat" if with_meshcat is None else f"{with_meshcat['realtime_factor']:.2f} with Meshcat"
+        print(f"{family}: real-time factor {headless['realtime_factor']:.2f} headless, {shown} (goal >= 1; "
+              f"{seconds:g} simulated s)", flush=True)
+    print(json.dumps(results))
+
+
+if __name__ == "__main__":
+    main()
