@@ -60,6 +60,8 @@ def time_family(family: str, seconds: float, meshcat, seed: int = 0) -> dict:
         return elapsed < WARMUP + seconds - 1e-9
 
     outcome = runner.run(runner.episode_limit(), on_tick=on_tick)
+    if "wall" not in clock:
+        raise RuntimeError(f"{family}'s episode ended within the {WARMUP} s warm-up: nothing was timed")
     simulated = runner.context.get_time() - clock["sim"]
     wall, cpu = time.perf_counter() - clock["wall"], time.process_time() - clock["cpu"]
     return {"simulated_s": round(simulated, 3), "wall_s": round(wall, 3), "cpu_s": round(cpu, 3),
