@@ -12,6 +12,8 @@ Goal (issues 38 and 39, reported, not asserted): real-time factor with Meshcat >
 ``load_average`` is the 1-minute load average when the script starts: time it on an otherwise idle machine.
 
     python benchmarks/main_command_realtime.py [--seconds 20] [--families building_blocks tool_positioning]
+    python benchmarks/main_command_realtime.py --families building_blocks --no-meshcat \
+        --scenario-overrides "{plant_config: {time_step: 0.004166666666666667}}"   # a physics variant's speed
     python benchmarks/main_command_realtime.py --test          # 0.3 simulated seconds each, for CI
 
 The last line printed is one JSON object.
@@ -25,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from seqdex_drake.evaluation.run_types import ChainRunError
 from seqdex_drake.evaluation.runner import ChainRunner, RunConfig
 from seqdex_drake.manual import LoadManual, goal_vector
 
@@ -44,11 +47,13 @@ def start_first_object(runner: ChainRunner, family: str, seed: int) -> str:
     return runner.start_block(step.block_type, goal_vector(step))
 
 
-def time_family(family: str, seconds: float, meshcat, seed: int = 0) -> dict:
-    """Wall and CPU seconds of ``seconds`` simulated seconds of ``family``'s shipped chain (``meshcat`` or None)."""
+def time_family(family: str, seconds: float, meshcat, seed: int = 0, scenario_overrides: str = "") -> dict:
+    """Wall and CPU seconds of ``seconds`` simulated seconds of ``family``'s shipped chain (``meshcat`` or None),
+    its scenario changed by ``scenario_overrides`` (YAML; ``RunConfig.scenario_overrides``) if given."""
     checkpoints = ROOT / "checkpoints" / family
     run_dir = str(checkpoints) if (checkpoints / "manifest.json").is_file() else None
-    runner = ChainRunner(RunConfig(family=family, run_dir=run_dir, seed=seed), meshcat=meshcat)
+    runner = ChainRunner(RunConfig(family=family, run_dir=run_dir, seed=seed, scenario_overrides=scenario_overrides),
+                         meshcat=meshcat)
     start_first_object(runner, family, seed)
     t0 = runner.context.get_time()
     clock = {}
@@ -75,31 +80,44 @@ def main():
                         help="simulated seconds timed per run (default 20, as the issue's 78 s wall figure)")
     parser.add_argument("--families", nargs="+", choices=FAMILIES, default=list(FAMILIES))
     parser.add_argument("--test", action="store_true", help="0.3 simulated seconds per run (no timing meaning)")
+    parser.add_argument("--no-meshcat", action="store_true", help="time the headless runs only")
+    parser.add_argument("--scenario-overrides", default="",
+                        help="YAML mapping applied to each chain's scenario (a physics variant, e.g. \"{plant_config: "
+                             "{time_step: 0.004166666666666667}}\"); the shipped policies were trained without one")
     args = parser.parse_args()
     if not args.seconds > 0:
         parser.error(f"--seconds must be > 0, got {args.seconds}")
     seconds = 0.3 if args.test else args.seconds
     from pydrake.geometry import Meshcat
 
-    results = {"load_average": round(os.getloadavg()[0], 2), "seconds": seconds}
+    results = {"load_average": round(os.getloadavg()[0], 2), "seconds": seconds,
+               **({"scenario_overrides": args.scenario_overrides} if args.scenario_overrides else {})}
+    meshcat = None
+    if not args.no_meshcat:
+        try:
+            meshcat = Meshcat()  # One server, as the main command starts one; each run deletes the previous scene.
+        except RuntimeError as error:
+            print(f"Meshcat did not start ({error}); the Meshcat figures are null", flush=True)
     try:
-        meshcat = Meshcat()  # One server, as the main command starts one; each run deletes the previous scene.
-    except RuntimeError as error:
-        print(f"Meshcat did not start ({error}); the Meshcat figures are null", flush=True)
-        meshcat = None
-    for family in args.families:
-        headless = time_family(family, seconds, None)
-        with_meshcat = None
-        if meshcat is not None:
-            meshcat.Delete()
-            with_meshcat = time_family(family, seconds, meshcat)
-        results[family] = {"headless": headless, "meshcat": with_meshcat,
-                           "realtime_factor": headless["realtime_factor"],
-                           "realtime_factor_meshcat": with_meshcat and with_meshcat["realtime_factor"]}
-        shown = "no Meshcat" if with_meshcat is None else f"{with_meshcat['realtime_factor']:.2f} with Meshcat"
-        print(f"{family}: real-time factor {headless['realtime_factor']:.2f} headless, {shown} (goal >= 1; "
-              f"{seconds:g} simulated s)", flush=True)
+        for family in args.families:
+            _time_both(family, seconds, meshcat, args.scenario_overrides, results)
+    except ChainRunError as error:
+        parser.error(str(error))
     print(json.dumps(results))
+
+
+def _time_both(family: str, seconds: float, meshcat, scenario_overrides: str, results: dict) -> None:
+    """Times ``family`` headless and (with ``meshcat``) with Meshcat; adds its figures to ``results``."""
+    headless = time_family(family, seconds, None, scenario_overrides=scenario_overrides)
+    with_meshcat = None
+    if meshcat is not None:
+        meshcat.Delete()
+        with_meshcat = time_family(family, seconds, meshcat, scenario_overrides=scenario_overrides)
+    results[family] = {"headless": headless, "meshcat": with_meshcat, "realtime_factor": headless["realtime_factor"],
+                       "realtime_factor_meshcat": with_meshcat and with_meshcat["realtime_factor"]}
+    shown = "no Meshcat" if with_meshcat is None else f"{with_meshcat['realtime_factor']:.2f} with Meshcat"
+    print(f"{family}: real-time factor {headless['realtime_factor']:.2f} headless, {shown} (goal >= 1; "
+          f"{seconds:g} simulated s)", flush=True)
 
 
 if __name__ == "__main__":

@@ -3,6 +3,8 @@ error a run that cannot start raises."""
 
 import dataclasses
 
+import yaml
+
 
 class ChainRunError(ValueError):
     """A chain run that cannot start (bad checkpoint, unknown object, ...); the message says what to fix."""
@@ -37,6 +39,29 @@ class RunConfig:
     """With a retrieve stage in the chain: the most other blocks of the same type fetched, one after another, when
     the retrieve ends with the target still in the pile (``evaluation/refetch.py``); 0 (the default, as the main
     command's recorded figures were measured): the first block only."""
+    scenario_overrides: str = ""
+    """YAML mapping applied on top of the family's chain scenario (``diagrams/<family>.scenarios.yaml``), e.g.
+    ``"{plant_config: {time_step: 0.004}}"``: to measure a physics variant (``benchmarks/main_command_realtime.py
+    --scenario-overrides``). The shipped policies were trained and every record was measured without one."""
+
+
+def scenario_text(config: RunConfig) -> str:
+    """The YAML the run's scenario is loaded with: ``config.scenario_overrides`` plus ``random_seed: config.seed``.
+
+    Raises:
+        ChainRunError: overrides that are not a YAML mapping, or that set ``random_seed`` (use ``seed``).
+    """
+    try:
+        overrides = yaml.safe_load(config.scenario_overrides or "{}")
+    except yaml.YAMLError as error:
+        raise ChainRunError(f"scenario_overrides is not valid YAML ({error}); give a mapping such as "
+                            "'{plant_config: {time_step: 0.004}}'") from error
+    if not isinstance(overrides, dict):
+        raise ChainRunError(f"scenario_overrides must be a YAML mapping such as '{{plant_config: {{time_step: "
+                            f"0.004}}}}', got {config.scenario_overrides!r}")
+    if "random_seed" in overrides:
+        raise ChainRunError("scenario_overrides sets random_seed: set the run's seed instead (RunConfig.seed, --seed)")
+    return yaml.safe_dump({**overrides, "random_seed": config.seed}, default_flow_style=True, width=1 << 16)
 
 
 @dataclasses.dataclass

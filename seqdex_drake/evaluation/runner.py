@@ -49,7 +49,7 @@ from seqdex_drake.evaluation.chain_settings import (
 )
 from seqdex_drake.evaluation.display import ChainStatusDisplay
 from seqdex_drake.evaluation.refetch import RetrieveWatch
-from seqdex_drake.evaluation.run_types import ChainRunError, Outcome, RunConfig
+from seqdex_drake.evaluation.run_types import ChainRunError, Outcome, RunConfig, scenario_text
 from seqdex_drake.harness import ResolvePackageUrl
 from seqdex_drake.modeling.blocks import BLOCK_SPECS
 from seqdex_drake.modeling.tools import TOOL_SPECS
@@ -110,7 +110,7 @@ class ChainRunner:
             self._watch = RetrieveWatch(self.tasks, config.refetches)
         except ValueError as error:
             raise ChainRunError(str(error)) from error
-        self.scenario = LoadScenario(SCENARIOS[config.family], scenario_text=f"{{random_seed: {config.seed}}}")
+        self.scenario = LoadScenario(SCENARIOS[config.family], scenario_text=scenario_text(config))
         stages, feasibility, self.missing = [(task, None) for task in self.tasks], None, []
         stage_configs, self.shipped = None, None
         if config.run_dir is not None and (Path(config.run_dir) / "manifest.json").exists():
