@@ -108,3 +108,46 @@ def test_the_release_goes_by_the_grasp_in_hand(env):
     assert ScriptedBlockInsert(release="tripod").release_kind(pinch) == "tripod"
     with pytest.raises(ValueError, match="release must be"):
         ScriptedBlockInsert(release="open")
+
+
+def test_a_jaw_held_block_is_let_go_once_down_at_the_seat(env):
+    """Grasp's jaw pinch (a grasp that relaxes) lets go as soon as the funnel has the block down at the seat, and the
+    wrist lifts once it has dropped onto the studs; above the seat it is held and steered; Insert's own tripod
+    keeps its timed release."""
+    script = ScriptedBlockInsert()
+    observation, _ = env.reset(seed=3)
+    pinch = np.array(observation, dtype=float)
+    pinch[JOINT_Q.start + THUMB_ROTATION] = TRIPOD_THUMB_ROTATION + 0.2
+    at = {}
+    for name, height in (("above", script.seat + 0.005), ("seat", script.seat), ("dropped", 0.002)):
+        at[name] = pinch.copy()
+        at[name][GOAL_POSITION_ERROR.start + 2] = -height  # goal - block: the block's bottom this high above it.
+    assert not script.released(at["above"], 20) and script.released(at["seat"], 20)
+    np.testing.assert_allclose(script.act(at["seat"], 20)[:16], unscale_limits_to_action(pinch[JOINT_Q]), atol=1e-12)
+    np.testing.assert_array_equal(script.act(at["seat"], 20)[16:], np.zeros(3))  # Let go: the wrist holds.
+    assert not script.lifting(at["seat"], 20) and script.lifting(at["dropped"], 20)
+    np.testing.assert_array_equal(script.act(at["dropped"], 20)[16:], [0.0, 0.0, 1.0])
+    tripod = np.array(observation, dtype=float)
+    tripod[GOAL_POSITION_ERROR.start + 2] = -script.seat
+    assert script.release_kind(tripod) == "tripod" and not script.released(tripod, 20)  # Timed: step 100.
+    assert not ScriptedBlockInsert(seated_dz=None).released(at["seat"], 20)
+
+
+def test_letting_go_at_the_seat_places_a_block_the_timed_release_loses():
+    """A real hand-off: Grasp's scripted pickup (seed 4, a 1x3), carried over its goal as the chain carries it. Held
+    at the seat until step 100 the block turns in the jaws on the studs and ends tilted on them; let go once down
+    at the seat it drops onto them and is placed."""
+    grasp, insert = make_env("grasp", budget_config("grasp")), make_env("insert", budget_config("insert"))
+    grasp.reset(seed=4)
+    for _ in range(grasp.config.episode_length):
+        *_, info = grasp.step(np.zeros(19))
+    assert info["success"]
+    state = grasp.get_state()
+    outcomes = {}
+    for seated_dz in (None, 0.001):
+        insert._unbound_base.seated_dz = seated_dz  # The env's script (its residual base), both rules.
+        insert.reset(seed=4, options={"initial_state": state})
+        for _ in range(insert.config.episode_length):
+            *_, info = insert.step(np.zeros(19))
+        outcomes[seated_dz] = (bool(info["success"]), insert.task.goal_errors(insert))
+    assert not outcomes[None][0] and outcomes[0.001][0], outcomes
