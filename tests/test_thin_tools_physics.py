@@ -6,7 +6,7 @@ Each tool lies on the table as tool Grasp's reset lays it (random yaw) and the h
 targets), which slam the fingers into the handle at any step, and the two scripted grasps with their lift (the fist
 the chain runs, the yaw-planned pinch). Every step must give a finite observation and reward and no simulator error,
 and the tool's speed must stay within what a tool batted by a hand can reach (a blown-up state runs to 1e160 m/s);
-it must never sink through the table. About 25 s.
+it must never sink through the table. About 10 s.
 """
 
 import dataclasses
@@ -53,7 +53,7 @@ def _assert_physical(worst: dict, what: str) -> None:
 def test_random_actions_keep_the_thin_tools_physical(tool):
     env = make_env("tool_grasp", dataclasses.replace(default_config("tool_grasp"), object_types=[TOOLS[tool]]))
     assert env.config.hand_actions and env.action_space.shape == (19,)
-    for seed in range(3):
+    for seed in range(2):
         rng = np.random.default_rng([seed, TOOLS[tool]])
         worst = _run_episode(env, seed, lambda step, rng=rng: rng.uniform(-1.0, 1.0, env.action_space.shape))
         assert env.target_object == tool
@@ -66,5 +66,4 @@ def test_the_scripted_grasps_keep_the_thin_tools_physical(tool, base):
     config = dataclasses.replace(budget_config("tool_grasp"), object_types=[TOOLS[tool]], residual=base)
     env = make_env("tool_grasp", config)
     zero = np.zeros(env.action_space.shape)
-    for seed in range(2):
-        _assert_physical(_run_episode(env, seed, lambda step: zero), f"{tool}, {base}, seed {seed}")
+    _assert_physical(_run_episode(env, 0, lambda step: zero), f"{tool}, {base}, seed 0")
