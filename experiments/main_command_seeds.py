@@ -94,6 +94,20 @@ class Funnel:
                 "lifted_at_insert": bool(insert and insert[2] >= LIFTED)}
 
 
+def worker_machine() -> str:
+    """The numerics of a worker process (``numerics.machine``): the workers run the episodes, and they are pinned
+    even where this process is not (pinning sets the environment the workers start in)."""
+    from seqdex_drake import numerics
+
+    return numerics.machine()
+
+
+def recorded_path(path: str) -> str:
+    """``path`` relative to the repository when inside it (records name the same checkpoints on every machine)."""
+    resolved = Path(path).resolve()
+    return str(resolved.relative_to(ROOT)) if resolved.is_relative_to(ROOT) else path
+
+
 def run_seed(job: tuple) -> list[dict]:
     """The manual's first ``blocks`` blocks from ``seed`` (a fresh chain, as the main command builds it)."""
     seed, checkpoints, manual, blocks, max_switches, refetches, trigger, time_limit = job
@@ -168,23 +182,24 @@ def main(argv=None) -> int:
     jobs = [(seed, args.checkpoints, args.manual, blocks, args.max_switches, args.refetches, args.trigger,
              0.5 if args.test else None)
             for seed in seeds]
-    from seqdex_drake import numerics
+    machine = ""
 
     def write(rows: list[dict], done: bool) -> None:
         """The record (atomically; after every seed, so a stopped run keeps the seeds it finished)."""
         placed = [sum(row["placed"] for row in rows if row["step"] == k) for k in range(blocks)]
-        result = {"checkpoints": args.checkpoints, "manual": args.manual, "max_switches": args.max_switches,
-                  "refetches": args.refetches,
+        result = {"checkpoints": recorded_path(args.checkpoints), "manual": args.manual,
+                  "max_switches": args.max_switches, "refetches": args.refetches,
                   "trigger": args.trigger or SWITCH_TRIGGER["building_blocks"], "seeds": seeds, "blocks": blocks,
                   **({} if done else {"seeds_done": sorted({row["seed"] for row in rows})}),
                   "placed_per_step": placed, "seeds_placing": sorted({row["seed"] for row in rows if row["placed"]}),
                   "manual_placed": sorted(seed for seed in {row["seed"] for row in rows}
                                           if sum(row["placed"] for row in rows if row["seed"] == seed) == blocks),
-                  "machine": numerics.machine(), "per_block": rows}
+                  "machine": machine, "per_block": rows}
         atomic_write(args.out, lambda file: file.write((json.dumps(result, indent=2) + "\n").encode()))
 
     rows = []
     with get_context("spawn").Pool(min(args.workers, len(jobs))) as pool:
+        machine = pool.apply(worker_machine)
         for seed_rows in pool.imap(run_seed, jobs):
             for row in seed_rows:
                 print(f"seed {row['seed']} block {row['step'] + 1} (type {row['block_type']}, {row['block']}): "
