@@ -206,10 +206,8 @@ class ScriptedBlockInsert:
 
     def released(self, observation, step: int) -> bool:
         """Whether the hand lets go at ``step``: from ``release_at`` on, and a grasp that relaxes (Grasp's jaw pinch)
-        as soon as the block is down at the seat. A block carried over its goal (the chain's hand-offs) reaches
-        the seat within about 30 steps; held there until step 100 it turned in the jaws as the studs pressed on
-        it (its tilt growing 3 -> 14 deg and more in most misses on tuning hand-offs). Once the block is that low
-        it only drops further, so the test stays true and the action stays a function of (observation, step)."""
+        as soon as the block is down at the seat (why: the module docstring). Once the block is that low it only
+        drops further, so the test stays true and the action stays a function of (observation, step)."""
         if step >= self.release_at:
             return True
         return self.seated_dz is not None and self.release_kind(observation) == "relax" and \
@@ -217,11 +215,11 @@ class ScriptedBlockInsert:
 
     def lifting(self, observation, step: int) -> bool:
         """Whether the wrist lifts at ``step``: from ``lift_at`` on, and after an early release (:meth:`released`)
-        once the block has dropped to within ``settled_h`` of its goal."""
+        once the block has dropped to within ``settled_h`` of its goal (below the seat: released there already)."""
         if step >= self.lift_at:
             return True
-        return self.seated_dz is not None and self.released(observation, step) and \
-            self.release_kind(observation) == "relax" and self._height(observation) <= self.settled_h
+        return self.seated_dz is not None and self.release_kind(observation) == "relax" and \
+            self._height(observation) <= min(self.settled_h, self.seat + self.seated_dz)
 
     def block_target(self, observation) -> np.ndarray:
         """Where the block's origin should go now (world) [m]."""
