@@ -11,6 +11,7 @@ where its block was lost::
 
 One line per sample: the block's index, the simulated time, the stage, the retrieve's phase and its step
 (``tasks/scripted/block_retrieve_script.py``: grip, lift, regrip, transfer, lower, release, rise, done, give_up),
+whether the approach controller or the stage's policy moves the arm,
 the target's position and its z axis's world-z component (1 upright, 0 on a side, -1 upside down), whether the
 freezer holds it, and the palm's position; then the block's outcome.
 """
@@ -39,21 +40,24 @@ def trace(runner, block: int, every: float, duration: float) -> None:
     """Runs the runner's current object to its end (or ``duration`` s), printing a line per sample."""
     palm = runner.plant.GetBodyByName("palm")
     retrieve = runner.policies[runner.tasks.index("retrieve")] if "retrieve" in runner.tasks else None
-    last = {"time": -np.inf, "stage": "", "phase": ""}
+    last = {"time": -np.inf, "stage": "", "phase": "", "approach": ""}
     start = runner.context.get_time()
 
     def on_tick(r) -> bool:
         t = r.context.get_time()
         stage = r.tasks[int(r.chain_output("active_stage")[0])]
         phase = retrieve_phase(r, retrieve) if stage == "retrieve" and retrieve is not None else ""
-        if t - last["time"] >= every or stage != last["stage"] or phase.split("@")[0] != last["phase"]:
+        approach = "approach" if r.chain_output("approach_active")[0] > 0.5 else "policy"
+        if (t - last["time"] >= every or stage != last["stage"] or phase.split("@")[0] != last["phase"]
+                or approach != last["approach"]):
             X_WB = r.object_pose()
             X_WP = r.plant.EvalBodyPoseInWorld(r.plant_context, palm)
             frozen = r.target in r.objects.frozen_names(r.context)
-            print(f"block {block + 1} t={t:.2f} {stage:8s} {phase:14s} block={np.round(X_WB.translation(), 3)} "
+            print(f"block {block + 1} t={t:.2f} {stage:8s} {approach:8s} {phase:14s} "
+                  f"block={np.round(X_WB.translation(), 3)} "
                   f"up={X_WB.rotation().matrix()[2, 2]:+.2f} frozen={int(frozen)} "
                   f"palm={np.round(X_WP.translation(), 3)}", flush=True)
-            last.update(time=t, stage=stage, phase=phase.split("@")[0])
+            last.update(time=t, stage=stage, phase=phase.split("@")[0], approach=approach)
         return t - start < duration
 
     outcome = runner.run(runner.episode_limit(), on_tick=on_tick)

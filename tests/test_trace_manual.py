@@ -1,5 +1,6 @@
 """experiments/trace_manual.py: the main command's chain traced in the real diagram (the shipped checkpoints, seed 0):
-a line per sample with the stage and, during the retrieve, the scripted retrieve's phase; bad input as one line."""
+a line per sample with the stage, whether the approach or the policy moves the arm and, during the retrieve, the
+scripted retrieve's phase; bad input as one line."""
 
 import subprocess
 import sys
@@ -17,8 +18,10 @@ def test_trace_shows_search_then_the_retrieves_phase():
     stages = [line.split()[3] for line in lines if line.startswith("block 1 t=")]  # block 1 t=T stage ...
     assert stages[0] == "search" and "retrieve" in stages, result.stdout
     retrieve = [line for line in lines if " retrieve " in line and "t=" in line]
-    assert retrieve and all("@" in line.split()[4] for line in retrieve)  # phase@step
-    assert retrieve[0].split()[4].split("@")[0] in ("grip", "lift", "regrip", "transfer")
+    assert retrieve and all("@" in line.split()[5] for line in retrieve)  # phase@step
+    assert retrieve[0].split()[5].split("@")[0] in ("grip", "lift", "regrip", "transfer")
+    movers = [line.split()[4] for line in lines if line.startswith("block 1 t=")]
+    assert movers[0] == "approach" and "policy" in movers, result.stdout  # The approach, then Search's policy.
     assert lines[-1].startswith("block 1 (block_5_") and "not placed" in lines[-1]
 
 
