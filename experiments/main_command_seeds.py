@@ -9,7 +9,11 @@ physical test (``ChainRunner.is_success``: within 2 cm and 0.2 rad of its goal, 
         --out results/building_blocks/main_command_first_block.json
     python experiments/main_command_seeds.py --seeds 0-31 --workers 2 \\
         --out results/building_blocks/main_command_manual.json
+    python experiments/main_command_seeds.py --seeds 0-31 --blocks 1 --piles tune   # tuning the chain
     python experiments/main_command_seeds.py --test     # one seed, the first block cut to 0.5 s, for CI
+
+``--piles`` picks the piles: the held-out ones (default; nothing is tuned on them), 32 others kept for tuning the
+chain (``scripts/generate_piles.py --count 32 --seed 1000``), or Search's 8 training piles.
 
 When the retrieve cannot take a block out of the pile, the chain fetches another of its type, at most
 ``--refetches`` times (``evaluation/refetch.py``; 0 measures the first block alone).
@@ -38,6 +42,11 @@ MAX_SEEDS = 1000
 #: The funnel's upright (the block's z axis within 20 deg of world z) and lifted (0.1 m above its start) tests, as
 #: ``experiments/retrieve_chain.py``'s.
 UPRIGHT_DOT, LIFTED = float(np.cos(np.radians(20.0))), 0.1
+
+
+#: The pile files ``--piles`` chooses from (``models/piles/``): seed S runs pile S modulo the file's count.
+PILE_FILES = {"eval": "building_blocks_eval_piles.npz", "tune": "building_blocks_tune_piles.npz",
+              "train": "building_blocks_piles.npz"}
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -110,12 +119,13 @@ def recorded_path(path: str) -> str:
 
 def run_seed(job: tuple) -> list[dict]:
     """The manual's first ``blocks`` blocks from ``seed`` (a fresh chain, as the main command builds it)."""
-    seed, checkpoints, manual, blocks, max_switches, refetches, trigger, time_limit = job
+    seed, checkpoints, manual, blocks, max_switches, refetches, trigger, time_limit, piles = job
     from seqdex_drake.evaluation.runner import ChainRunner, RunConfig
     from seqdex_drake.manual import LoadManual, goal_vector
 
+    overrides = "" if piles == "eval" else f"pile_file: package://seqdex_models/piles/{PILE_FILES[piles]}\n"
     runner = ChainRunner(RunConfig(family="building_blocks", run_dir=checkpoints, max_switches=max_switches,
-                                   refetches=refetches, trigger=trigger, seed=seed))
+                                   refetches=refetches, trigger=trigger, seed=seed, scenario_overrides=overrides))
     rows = []
     for index, step in enumerate(LoadManual(manual).steps[:blocks]):
         start = time.perf_counter()
@@ -144,6 +154,9 @@ def main(argv=None) -> int:
                              "the main command's)")
     parser.add_argument("--trigger", default="", help="the switcher's trigger: next, any_later or decision "
                         "(``SwitcherParams.trigger``; default: the main command's)")
+    parser.add_argument("--piles", default="eval",
+                        help="the piles: eval, the held-out ones the main command uses (default); tune, 32 others "
+                             "for tuning the chain; train, Search's 8 training piles")
     parser.add_argument("--workers", type=int, default=1, help="processes, one seed each at a time (default 1)")
     parser.add_argument("--out", help="write the results to this JSON file")
     parser.add_argument("--test", action="store_true", help="seed 0, the first block cut to 0.5 s, for CI")
@@ -168,6 +181,8 @@ def main(argv=None) -> int:
             raise InputError(f"--refetches must be >= 0, got {args.refetches}")
         if not (Path(args.checkpoints) / "manifest.json").is_file():
             raise InputError(f"--checkpoints {args.checkpoints} has no manifest.json (not a shipped checkpoint folder)")
+        if args.piles not in PILE_FILES:
+            raise InputError(f"--piles must be one of {', '.join(PILE_FILES)}, got '{args.piles}'")
         if args.trigger not in ("", *TRIGGERS):
             raise InputError(f"--trigger must be one of {', '.join(TRIGGERS)}, got '{args.trigger}'")
         if args.out:
@@ -180,14 +195,14 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return 2
     jobs = [(seed, args.checkpoints, args.manual, blocks, args.max_switches, args.refetches, args.trigger,
-             0.5 if args.test else None)
+             0.5 if args.test else None, args.piles)
             for seed in seeds]
     machine = ""
 
     def write(rows: list[dict], done: bool) -> None:
         """The record (atomically; after every seed, so a stopped run keeps the seeds it finished)."""
         placed = [sum(row["placed"] for row in rows if row["step"] == k) for k in range(blocks)]
-        result = {"checkpoints": recorded_path(args.checkpoints), "manual": args.manual,
+        result = {"checkpoints": recorded_path(args.checkpoints), "manual": args.manual, "piles": args.piles,
                   "max_switches": args.max_switches, "refetches": args.refetches,
                   "trigger": args.trigger or SWITCH_TRIGGER["building_blocks"], "seeds": seeds, "blocks": blocks,
                   **({} if done else {"seeds_done": sorted({row["seed"] for row in rows})}),
